@@ -1,0 +1,41 @@
+# tanklab developer entry points. `make run` and `make test` work on a fresh clone:
+# they create .venv and install the project (with its dev extras) on first use.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+CONFIG ?= configs/three_tank_energies_sim.yaml
+PYTEST_ARGS ?=
+
+.PHONY: venv run test lint typecheck unit bench docs clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+run: venv
+	$(BIN)/tankctl plant --config $(CONFIG)
+
+lint: venv
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff format --check src tests benchmarks
+
+typecheck: venv
+	$(BIN)/mypy
+
+test: lint typecheck
+	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+bench: venv
+	$(BIN)/python -m benchmarks.run
+
+docs: venv
+	$(BIN)/tankctl docs address-space > docs/address-space.md
+	$(BIN)/tankctl config schema > docs/config-schema.json
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,66 @@
+"""Enumerations of the address-space contract.
+
+Every enumerated node (loop ``Mode``, ``GainSource``, ``Supervisor.Mode``, ``MPC.Status``,
+``LT.Fault``) is an Int32 variable with an ``EnumStrings`` property; the integer values are
+defined here, once, and nowhere else. The member names are the EnumStrings, in order.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+
+class LoopMode(IntEnum):
+    """Operating mode of a PLC control loop ``PLC.LIC{j}.Mode``.
+
+    MANUAL: the operator's ``ManualMV`` drives the actuator.
+    AUTO: the loop's block computes the MV from SP and PV.
+    REMOTE: the supervisor's ``RemoteMV`` drives the actuator (the MPC-direct architecture).
+    """
+
+    MANUAL = 0
+    AUTO = 1
+    REMOTE = 2
+
+
+class GainSource(IntEnum):
+    """Where the gains a PID loop applies came from (``PLC.LIC{j}.GainSource``)."""
+
+    FIXED = 0
+    SUPERVISOR = 1
+    FALLBACK = 2
+
+
+class SupervisorMode(IntEnum):
+    """Operating mode of the supervisor (``Supervisor.Mode``)."""
+
+    OFF = 0
+    ADVISORY = 1
+    ADAPTIVE_PID = 2
+    MPC = 3
+
+
+class MpcStatus(IntEnum):
+    """Outcome of the last MPC step (``Supervisor.MPC.Status``).
+
+    SOLVED: the QP solved to tolerance. INACCURATE: solved to a looser tolerance (plan used).
+    HELD: the solver failed and the previous safe plan, shifted one step, was used.
+    """
+
+    NOT_RUN = 0
+    SOLVED = 1
+    INACCURATE = 2
+    HELD = 3
+
+
+class SensorFault(IntEnum):
+    """Injectable fault of a level transmitter (``Plant.LT{i}.Fault``).
+
+    BIAS adds ``FaultValue`` [m]; STUCK freezes the reading at the value it had when the fault
+    was set; DRIFT adds ``FaultValue`` [m/s] times the time since the fault was set.
+    """
+
+    NONE = 0
+    BIAS = 1
+    STUCK = 2
+    DRIFT = 3
