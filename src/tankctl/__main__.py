@@ -1,0 +1,5 @@
+"""``python -m tankctl``."""
+
+from tankctl.cli import main
+
+main()

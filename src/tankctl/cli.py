@@ -1,0 +1,275 @@
+"""``tankctl``: the command line of tanklab (composition root).
+
+Every command validates its input at the edge and turns a failure into one line on stderr
+and a non-zero exit code (2 for bad usage, a bad config or an unreachable endpoint, 1 for a
+refused operation); nothing prints a traceback. ``asyncio.run`` is called only here.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+
+from tankctl.tune_cli import app as tune_app
+from tanklab.config import SiteConfig, load_site, site_schema
+from tanklab.errors import TanklabError
+from tanklab.tags import render_markdown
+
+app = typer.Typer(
+    name="tankctl",
+    help="tanklab: a two-tier SCADA/PLC emulation over OPC UA for liquid-level control.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+config_app = typer.Typer(help="Validate site configs and print their schema.", no_args_is_help=True)
+docs_app = typer.Typer(help="Generate documentation from the code.", no_args_is_help=True)
+app.add_typer(config_app, name="config")
+app.add_typer(tune_app, name="tune")
+app.add_typer(docs_app, name="docs")
+
+ConfigOpt = Annotated[
+    Path | None,
+    typer.Option("--config", "-c", help="Site YAML file (env TANKLAB_CONFIG; default: the Energies sim)."),
+]
+HostOpt = Annotated[str | None, typer.Option(help="Address to bind (env TANKLAB_HOST; default 127.0.0.1).")]
+SpeedOpt = Annotated[
+    float | None, typer.Option(help="Model seconds per wall second (env TANKLAB_SPEED; default 1).")
+]
+
+
+def fail(message: str, code: int = 2) -> typer.Exit:
+    """Print one line to stderr and return the Exit to raise."""
+    typer.echo(f"tankctl: {message}", err=True)
+    return typer.Exit(code)
+
+
+def _env(name: str) -> str | None:
+    value = os.environ.get(name)
+    return value if value else None
+
+
+def resolve_config(path: Path | None) -> Path:
+    """--config, else TANKLAB_CONFIG, else the default site."""
+    if path is not None:
+        return path
+    env = _env("TANKLAB_CONFIG")
+    return Path(env) if env else Path("configs/three_tank_energies_sim.yaml")
+
+
+def resolve_speed(speed: float | None) -> float:
+    """--speed, else TANKLAB_SPEED, else 1; must be a positive number."""
+    if speed is None:
+        env = _env("TANKLAB_SPEED")
+        try:
+            speed = float(env) if env else 1.0
+        except ValueError:
+            raise fail(f"TANKLAB_SPEED must be a number, got {env!r}") from None
+    if not (speed > 0 and np.isfinite(speed)):
+        raise fail(f"--speed must be a positive number, got {speed}")
+    return speed
+
+
+def load(path: Path) -> SiteConfig:
+    """Load a site config with environment endpoint overrides; errors become one line."""
+    try:
+        return load_site(path, env=os.environ)
+    except TanklabError as e:
+        raise fail(str(e)) from None
+
+
+def setup_logging(level: int = logging.INFO) -> None:
+    """One line per event: time, level, logger, message. asyncua's chatter is kept to warnings."""
+    logging.basicConfig(
+        level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
+    )
+    logging.getLogger("asyncua").setLevel(logging.WARNING)
+
+
+def run_until_signal(main: Any) -> None:
+    """Run ``main(stop_event)`` under asyncio; SIGINT and SIGTERM set the event."""
+
+    async def runner() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        await main(stop)
+
+    asyncio.run(runner())
+
+
+# --------------------------------------------------------------------------------------------
+# config
+# --------------------------------------------------------------------------------------------
+
+
+@config_app.command("check")
+def config_check(file: Annotated[Path, typer.Argument(help="Site YAML file to validate.")]) -> None:
+    """Validate a site config: prints a summary, or one line naming file, field and rule."""
+    site = load(file)
+    parts = [
+        f"{len(site.plant.tanks)} tanks",
+        f"{len(site.plant.pumps)} pumps",
+        f"{len(site.plant.valves)} valves",
+    ]
+    if site.plc:
+        parts.append(f"{len(site.plc.loops)} loops")
+    if site.supervisor:
+        parts.append(f"supervisor {site.supervisor.mode}")
+    typer.echo(f"{file}: ok ({site.name}: {', '.join(parts)})")
+
+
+@config_app.command("schema")
+def config_schema() -> None:
+    """Print the JSON schema of a site config file."""
+    typer.echo(json.dumps(site_schema(), indent=2, sort_keys=True))
+
+
+@docs_app.command("address-space")
+def docs_address_space(config: ConfigOpt = None) -> None:
+    """Print docs/address-space.md (the contract's node table for the site)."""
+    typer.echo(render_markdown(load(resolve_config(config))), nl=False)
+    typer.echo("")
+
+
+# --------------------------------------------------------------------------------------------
+# linearize
+# --------------------------------------------------------------------------------------------
+
+
+@app.command()
+def linearize(
+    config: Annotated[Path, typer.Argument(help="Site YAML file.")],
+    ts: Annotated[
+        float | None, typer.Option("--ts", help="Sample time [s] for ZOH; omit: continuous.")
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print JSON (keys A, B, C, D, ts, operating_point).")
+    ] = False,
+) -> None:
+    """Linearize the plant at its operating point: A, B, C, D w.r.t. the pump flows [m^3/s]."""
+    from plant_sim.linearize import linearize as lin
+    from plant_sim.linearize import operating_point
+    from plant_sim.models import TankNetwork, default_inputs
+
+    if ts is not None and not (ts > 0 and np.isfinite(ts)):
+        raise fail(f"--ts must be a positive number of seconds, got {ts}")
+    site = load(config)
+    net = TankNetwork.from_config(site.plant)
+    u = default_inputs(net, site.plant)
+    try:
+        op = operating_point(net, site.plant, u)
+    except ValueError as e:
+        raise fail(f"{config}: plant.operating_point: {e}") from None
+    model = lin(net, op.levels_m, op.flows_m3_s, u, ts)
+    result = {
+        "A": model.A.tolist(),
+        "B": model.B.tolist(),
+        "C": model.C.tolist(),
+        "D": model.D.tolist(),
+        "ts": ts,
+        "states": list(model.state_names),
+        "inputs": list(model.input_names),
+        "operating_point": {
+            "levels_m": op.levels_m.tolist(),
+            "flows_m3_s": op.flows_m3_s.tolist(),
+            "equilibrium_levels_m": op.equilibrium_levels_m.tolist(),
+            "pump_commands": op.commands.tolist(),
+            "note": site.plant.operating_point.note,
+        },
+    }
+    if as_json:
+        typer.echo(json.dumps(result, indent=2))
+        return
+    kind = f"discrete, ZOH, Ts = {ts:g} s" if ts else "continuous"
+    typer.echo(
+        f"{site.name}: linear model ({kind}), states {model.state_names}, inputs {model.input_names} [m^3/s]"
+    )
+    typer.echo(
+        f"operating point: levels {np.round(op.levels_m, 5).tolist()} m, flows {op.flows_m3_s.tolist()} m^3/s"
+    )
+    with np.printoptions(precision=6, suppress=False, linewidth=120):
+        for name in ("A", "B", "C", "D"):
+            typer.echo(f"{name} =\n{getattr(model, name)}")
+
+
+# --------------------------------------------------------------------------------------------
+# tier processes
+# --------------------------------------------------------------------------------------------
+
+
+@app.command()
+def plant(
+    config: ConfigOpt = None,
+    host: HostOpt = None,
+    port: Annotated[int | None, typer.Option(help="TCP port (env TANKLAB_PORT; default 4840).")] = None,
+    speed: SpeedOpt = None,
+    lockstep: Annotated[
+        bool, typer.Option(help="Advance only through Plant.Sim.Advance (driven by the PLC).")
+    ] = False,
+    state_file: Annotated[Path | None, typer.Option(help="Checkpoint file (default: the config's).")] = None,
+) -> None:
+    """Serve the plant simulator at opc.tcp://HOST:PORT/tanklab/plant."""
+    from plant_sim.runtime import run_plant
+
+    site = load(resolve_config(config))
+    host = host or _env("TANKLAB_HOST") or "127.0.0.1"
+    env_port = _env("TANKLAB_PORT")
+    try:
+        port = port if port is not None else int(env_port) if env_port else site.endpoints.plant.port
+    except ValueError:
+        raise fail(f"TANKLAB_PORT must be a port number, got {env_port!r}") from None
+    if not 1 <= port <= 65535:
+        raise fail(f"--port must be 1..65535, got {port}")
+    spd = resolve_speed(speed)
+    setup_logging()
+
+    async def main(stop: asyncio.Event) -> None:
+        ready = asyncio.Event()
+        task = asyncio.create_task(
+            run_plant(
+                site,
+                host=host,
+                port=port,
+                speed=spd,
+                lockstep=lockstep,
+                stop=stop,
+                state_file=state_file,
+                ready=ready,
+            )
+        )
+        waiter = asyncio.create_task(ready.wait())
+        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+        if ready.is_set():
+            typer.echo(
+                f"plant: {site.name} at opc.tcp://{host}:{port}/tanklab/plant (speed {spd:g})", err=False
+            )
+            sys.stdout.flush()
+        else:
+            waiter.cancel()
+        await task
+
+    try:
+        run_until_signal(main)
+    except OSError as e:
+        raise fail(f"cannot serve on {host}:{port}: {e.strerror or e}") from None
+    except TanklabError as e:
+        raise fail(str(e)) from None
+
+
+def main() -> None:
+    """Console-script entry point."""
+    try:
+        app()
+    except KeyboardInterrupt:
+        sys.exit(130)

@@ -1,0 +1,375 @@
+"""asyncua adapter of the address-space contract: build nodes, guard writes, resolve on clients.
+
+This is the one module of the shared kernel that touches asyncua; every tier's ``server.py``
+and ``link.py`` go through it, so the contract in :mod:`tanklab.tags` is realised the same way
+everywhere.
+
+Server side
+    :func:`build_nodes` creates the objects along the dotted paths and one node per tag:
+    AnalogItemType variables (EURange, EngineeringUnits), MultiStateDiscreteType Int32 variables
+    (EnumStrings), plain variables, and methods with named arguments. :class:`WriteGuard`
+    replaces the server's attribute service so that every client write to a tanklab node is
+    validated before it is stored: wrong type -> BadTypeMismatch; NaN, infinity, outside
+    EURange, unknown enum value -> BadOutOfRange; a non-Good status in the written DataValue ->
+    BadWriteNotSupported; a read-only node -> BadNotWritable; the tier's own check may refuse
+    with any status. A refused write leaves the old value. Writes of a batch are judged one by
+    one (each item gets its own status; accepted items are stored even if others are refused).
+    A client-supplied SourceTimestamp is ignored: the server stamps its own time.
+
+Client side
+    :func:`resolve` looks the namespace index of ``urn:tanklab`` up and returns the nodes of the
+    given paths; :func:`read_values` reads many values in one Read.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Awaitable, Callable, Iterable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from asyncua import Client, Node, Server, ua
+from asyncua.crypto.permission_rules import User
+from asyncua.server.address_space import AttributeService
+
+from tanklab.tags import NAMESPACE_URI, DataType, Tag
+
+log = logging.getLogger(__name__)
+
+_VARIANT = {
+    DataType.DOUBLE: ua.VariantType.Double,
+    DataType.INT32: ua.VariantType.Int32,
+    DataType.UINT32: ua.VariantType.UInt32,
+    DataType.BOOLEAN: ua.VariantType.Boolean,
+    DataType.STRING: ua.VariantType.String,
+    DataType.DOUBLE_ARRAY: ua.VariantType.Double,
+}
+_DATATYPE_ID = {
+    DataType.DOUBLE: ua.ObjectIds.Double,
+    DataType.INT32: ua.ObjectIds.Int32,
+    DataType.UINT32: ua.ObjectIds.UInt32,
+    DataType.BOOLEAN: ua.ObjectIds.Boolean,
+    DataType.STRING: ua.ObjectIds.String,
+    DataType.DOUBLE_ARRAY: ua.ObjectIds.Double,
+}
+
+MethodHandler = Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]
+"""A method implementation: ``async (*python_args) -> outputs or StatusCode``."""
+
+WriteHandler = Callable[[Tag, Any], ua.StatusCode | None]
+"""A tier's own check and apply for a validated write: None accepts, a StatusCode refuses."""
+
+
+def variant(tag: Tag, value: Any) -> ua.Variant:
+    """The Variant a tag's value is stored as (arrays as Double arrays)."""
+    if tag.data_type is None:
+        raise ValueError(f"{tag.path} is a method, not a variable")
+    vt = _VARIANT[tag.data_type]
+    if tag.data_type == DataType.DOUBLE_ARRAY:
+        return ua.Variant([float(v) for v in value], vt, is_array=True)
+    if tag.data_type == DataType.DOUBLE:
+        return ua.Variant(float(value), vt)
+    if tag.data_type in (DataType.INT32, DataType.UINT32):
+        return ua.Variant(int(value), vt)
+    if tag.data_type == DataType.BOOLEAN:
+        return ua.Variant(bool(value), vt)
+    return ua.Variant(str(value), vt)
+
+
+def _argument(arg: Any) -> ua.Argument:
+    a = ua.Argument()
+    a.Name = arg.name
+    a.DataType = ua.NodeId(_DATATYPE_ID[arg.data_type])
+    a.ValueRank = 1 if arg.data_type == DataType.DOUBLE_ARRAY else -1
+    a.ArrayDimensions = []
+    unit = f" [{arg.unit}]" if arg.unit else ""
+    a.Description = ua.LocalizedText(arg.description + unit)
+    return a
+
+
+async def _ensure_object(server: Server, idx: int, path: str, objects: dict[str, Node]) -> Node:
+    if path in objects:
+        return objects[path]
+    if "." in path:
+        parent = await _ensure_object(server, idx, path.rsplit(".", 1)[0], objects)
+    else:
+        parent = server.nodes.objects
+    name = path.rsplit(".", 1)[-1]
+    node = await parent.add_object(ua.NodeId(path, idx), ua.QualifiedName(name, idx))
+    objects[path] = node
+    return node
+
+
+async def _add_variable(server: Server, idx: int, parent: Node, tag: Tag) -> Node:
+    assert tag.data_type is not None
+    attrs = ua.VariableAttributes()
+    attrs.DisplayName = ua.LocalizedText(tag.name)
+    attrs.Description = ua.LocalizedText(tag.description)
+    attrs.Value = variant(tag, tag.initial_value())
+    attrs.DataType = ua.NodeId(_DATATYPE_ID[tag.data_type])
+    is_array = tag.data_type == DataType.DOUBLE_ARRAY
+    attrs.ValueRank = 1 if is_array else -1
+    attrs.ArrayDimensions = [0] if is_array else []
+    level = ua.AccessLevel.CurrentRead.mask
+    if tag.writable:
+        level |= ua.AccessLevel.CurrentWrite.mask
+    attrs.AccessLevel = level
+    attrs.UserAccessLevel = level
+    attrs.WriteMask = 0
+    attrs.UserWriteMask = 0
+    attrs.Historizing = False
+    if tag.enum is not None:
+        typedef = ua.ObjectIds.MultiStateDiscreteType
+    elif tag.analog:
+        typedef = ua.ObjectIds.AnalogItemType
+    else:
+        typedef = ua.ObjectIds.BaseDataVariableType
+    item = ua.AddNodesItem()
+    item.RequestedNewNodeId = ua.NodeId(tag.path, idx)
+    item.BrowseName = ua.QualifiedName(tag.name, idx)
+    item.NodeClass = ua.NodeClass.Variable
+    item.ParentNodeId = parent.nodeid
+    item.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasComponent)
+    item.TypeDefinition = ua.NodeId(typedef)
+    item.NodeAttributes = attrs
+    result = (await server.iserver.isession.add_nodes([item]))[0]
+    result.StatusCode.check()
+    node = server.get_node(result.AddedNodeId)
+    if tag.enum is not None:
+        names = [ua.LocalizedText(m.name) for m in sorted(tag.enum, key=int)]
+        await node.add_property(
+            ua.NodeId(f"{tag.path}.EnumStrings", idx),
+            ua.QualifiedName("EnumStrings", 0),
+            ua.Variant(names, ua.VariantType.LocalizedText, is_array=True),
+        )
+    if tag.eu_range is not None:
+        rng = ua.Range(Low=float(tag.eu_range[0]), High=float(tag.eu_range[1]))
+        await node.add_property(ua.NodeId(f"{tag.path}.EURange", idx), ua.QualifiedName("EURange", 0), rng)
+    if tag.unit is not None:
+        eu = ua.EUInformation(
+            NamespaceUri="http://www.opcfoundation.org/UA/units/un/cefact",
+            UnitId=-1,
+            DisplayName=ua.LocalizedText(tag.unit),
+            Description=ua.LocalizedText(tag.unit),
+        )
+        await node.add_property(
+            ua.NodeId(f"{tag.path}.EngineeringUnits", idx), ua.QualifiedName("EngineeringUnits", 0), eu
+        )
+    return node
+
+
+async def build_nodes(
+    server: Server, tags: Iterable[Tag], methods: dict[str, MethodHandler] | None = None
+) -> tuple[int, dict[str, Node]]:
+    """Create every tag's node on ``server`` under the namespace ``urn:tanklab``.
+
+    Parameters
+    ----------
+    server : an initialised asyncua server.
+    tags : the tier's tags.
+    methods : implementation of each method tag, keyed by path. A method without a handler is
+        an error: the contract promises it.
+
+    Returns
+    -------
+    (namespace index, nodes by path).
+    """
+    methods = methods or {}
+    idx = await server.register_namespace(NAMESPACE_URI)
+    objects: dict[str, Node] = {}
+    nodes: dict[str, Node] = {}
+    for tag in tags:
+        parent = await _ensure_object(server, idx, tag.parent, objects)
+        if tag.kind == "method":
+            if tag.path not in methods:
+                raise ValueError(f"no handler for method {tag.path}")
+            handler = methods[tag.path]
+            node = await parent.add_method(
+                ua.NodeId(tag.path, idx),
+                ua.QualifiedName(tag.name, idx),
+                _method_adapter(tag, handler),
+                [_argument(a) for a in tag.inputs],
+                [_argument(a) for a in tag.outputs],
+            )
+        else:
+            node = await _add_variable(server, idx, parent, tag)
+        nodes[tag.path] = node
+    return idx, nodes
+
+
+def _method_adapter(tag: Tag, handler: MethodHandler) -> Callable[..., Awaitable[Any]]:
+    """Check argument count and types, unwrap Variants, and return precise status codes."""
+
+    async def call(parent: ua.NodeId, *args: ua.Variant) -> Any:
+        if len(args) != len(tag.inputs):
+            return ua.StatusCode(
+                ua.StatusCodes.BadArgumentsMissing
+                if len(args) < len(tag.inputs)
+                else ua.StatusCodes.BadTooManyArguments
+            )
+        values: list[Any] = []
+        for arg, v in zip(tag.inputs, args, strict=True):
+            want = _VARIANT[arg.data_type]
+            if not isinstance(v, ua.Variant) or v.VariantType != want:
+                return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+            is_list = isinstance(v.Value, list)
+            if (arg.data_type == DataType.DOUBLE_ARRAY) != is_list:
+                return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+            values.append(v.Value)
+        return await handler(*values)
+
+    return call
+
+
+# --------------------------------------------------------------------------------------------
+# Write validation
+# --------------------------------------------------------------------------------------------
+
+
+def check_value(tag: Tag, value: ua.Variant | None) -> ua.StatusCode | None:
+    """Contract checks of a written value: type, finiteness, EURange, enum membership.
+
+    Returns ``None`` when the value is acceptable, else the Bad status to answer.
+    """
+    if tag.data_type is None or value is None:
+        return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+    if value.VariantType != _VARIANT[tag.data_type]:
+        return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+    is_list = isinstance(value.Value, list)
+    if (tag.data_type == DataType.DOUBLE_ARRAY) != is_list:
+        return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+    items = value.Value if is_list else [value.Value]
+    for v in items:
+        if isinstance(v, float) and not math.isfinite(v):
+            return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
+        if tag.enum is not None and int(v) not in {int(m) for m in tag.enum}:
+            return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
+        if tag.eu_range is not None and isinstance(v, int | float) and not isinstance(v, bool):
+            lo, hi = tag.eu_range
+            if not lo <= v <= hi:
+                return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
+    return None
+
+
+class WriteGuard(AttributeService):
+    """The server's attribute service with the contract's write validation in front.
+
+    Install with :func:`install_write_guard`. Writes to nodes outside the guarded set (the
+    standard namespace) go to asyncua's own checks unchanged.
+    """
+
+    def __init__(self, base: AttributeService, tags_by_nodeid: dict[ua.NodeId, Tag], on_write: WriteHandler):
+        super().__init__(base._aspace)
+        self._tags = tags_by_nodeid
+        self._on_write = on_write
+        self.refused = 0
+        self.accepted = 0
+
+    async def write(self, params: ua.WriteParameters, user: User | None = None) -> list[ua.StatusCode]:
+        results: list[ua.StatusCode] = []
+        for wv in params.NodesToWrite:
+            tag = self._tags.get(wv.NodeId)
+            if tag is None:
+                sub = ua.WriteParameters(NodesToWrite=[wv])
+                results.extend(await (super().write(sub, user) if user else super().write(sub)))
+                continue
+            status = self._judge(tag, wv)
+            if status is None:
+                stamped = ua.DataValue(
+                    Value=wv.Value.Value,
+                    SourceTimestamp=datetime.now(UTC),
+                    ServerTimestamp=datetime.now(UTC),
+                )
+                status = await self._aspace.write_attribute_value(wv.NodeId, ua.AttributeIds.Value, stamped)
+            if status.is_good():
+                self.accepted += 1
+            else:
+                self.refused += 1
+                log.info("write to %s refused: %s", tag.path, status.name)
+            results.append(status)
+        return results
+
+    def _judge(self, tag: Tag, wv: ua.WriteValue) -> ua.StatusCode | None:
+        if wv.AttributeId != ua.AttributeIds.Value:
+            return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+        if tag.kind != "variable" or not tag.writable:
+            return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+        if wv.IndexRange:
+            return ua.StatusCode(ua.StatusCodes.BadWriteNotSupported)
+        dv = wv.Value
+        if dv is None:
+            return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+        if dv.StatusCode is not None and not dv.StatusCode.is_good():
+            return ua.StatusCode(ua.StatusCodes.BadWriteNotSupported)
+        bad = check_value(tag, dv.Value)
+        if bad is not None:
+            return bad
+        assert dv.Value is not None
+        return self._on_write(tag, dv.Value.Value)
+
+
+def install_write_guard(
+    server: Server, tags: Iterable[Tag], nodes: dict[str, Node], on_write: WriteHandler
+) -> WriteGuard:
+    """Put a :class:`WriteGuard` in front of ``server``'s attribute service."""
+    by_id = {nodes[t.path].nodeid: t for t in tags if t.path in nodes and t.kind == "variable"}
+    iserver = server.iserver
+    guard = WriteGuard(iserver.attribute_service, by_id, on_write)
+    iserver.attribute_service = guard
+    return guard
+
+
+@dataclass
+class Publisher:
+    """Writes many tag values from inside the server (no guard, no client round trip)."""
+
+    server: Server
+    tags: dict[str, Tag]
+    nodes: dict[str, Node]
+
+    async def publish(self, values: dict[str, Any]) -> None:
+        """Store each value (converted to its tag's Variant) with the server's timestamp."""
+        now = datetime.now(UTC)
+        for path, value in values.items():
+            dv = ua.DataValue(variant(self.tags[path], value), SourceTimestamp=now, ServerTimestamp=now)
+            await self.server.write_attribute_value(self.nodes[path].nodeid, dv)
+
+    async def read(self, path: str) -> Any:
+        """Current value of a tag as stored in the address space."""
+        return await self.nodes[path].read_value()
+
+
+# --------------------------------------------------------------------------------------------
+# Client side
+# --------------------------------------------------------------------------------------------
+
+
+async def namespace_index(client: Client) -> int:
+    """Index of ``urn:tanklab`` on the server the client is connected to."""
+    return int(await client.get_namespace_index(NAMESPACE_URI))
+
+
+async def resolve(client: Client, paths: Sequence[str]) -> dict[str, Node]:
+    """Nodes of the given paths (the namespace index looked up from the URI)."""
+    idx = await namespace_index(client)
+    return {p: client.get_node(ua.NodeId(p, idx)) for p in paths}
+
+
+async def read_values(client: Client, nodes: Sequence[Node]) -> list[Any]:
+    """Read many values in one Read service call (values of the same instant)."""
+    return list(await client.read_values(list(nodes)))
+
+
+async def write_value(node: Node, tag: Tag, value: Any) -> ua.StatusCode:
+    """Write one value of the tag's type; return the server's status (no exception)."""
+    dv = ua.DataValue(variant(tag, value))
+    params = ua.WriteParameters()
+    wv = ua.WriteValue()
+    wv.NodeId = node.nodeid
+    wv.AttributeId = ua.AttributeIds.Value
+    wv.Value = dv
+    params.NodesToWrite = [wv]
+    result = await node.session.write(params)
+    return result[0]

@@ -1,0 +1,134 @@
+"""Site configs: every shipped file validates; bad files give one line naming file, field, rule."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from tankctl.cli import app
+from tanklab.config import ConfigError, PumpSpec, load_site, parse_endpoint_url, site_from_mapping
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
+REQUIRED = {
+    "three_tank_energies_sim.yaml",
+    "three_tank_energies_rig.yaml",
+    "three_tank_kortela.yaml",
+    "single_tank_short_sim.yaml",
+    "single_tank_short_rig.yaml",
+    "two_tank_interacting.yaml",
+}
+runner = CliRunner()
+
+
+def test_every_parameter_set_of_the_digest_ships() -> None:
+    assert {p.name for p in CONFIGS} >= REQUIRED
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
+def test_shipped_config_validates(path: Path) -> None:
+    site = load_site(path)
+    assert site.name == path.stem
+    result = runner.invoke(app, ["config", "check", str(path)])
+    assert result.exit_code == 0, result.output
+    assert "ok" in result.output
+
+
+def _energies() -> dict:
+    return yaml.safe_load((ROOT / "configs/three_tank_energies_sim.yaml").read_text())
+
+
+@pytest.mark.parametrize(
+    ("mutate", "field", "rule"),
+    [
+        (lambda d: d["plant"]["tanks"][0].update(area_m2=-1), "plant.tanks[0].area_m2", "greater than 0"),
+        (lambda d: d["plant"]["tanks"][1].update(colour="red"), "plant.tanks[1].colour", "Extra inputs"),
+        (lambda d: d["plant"]["valves"][0].update(name="V12"), "plant.valves[0]", "name must be V13"),
+        (lambda d: d["plc"]["loops"][0].update(setpoint_m=0.9), "plc.loops[0]", "setpoint_m must lie"),
+        (lambda d: d["plant"]["pumps"][0].update(command_max="lots"), "plant.pumps[0].command_max", "number"),
+        (lambda d: d["plant"]["tanks"][0].update(leak_mu=float("nan")), "plant.tanks[0].leak_mu", "finite"),
+        (lambda d: d["supervisor"]["mpc"].update(qz=[1.0]), "(top level)", "one weight per controlled"),
+    ],
+)
+def test_bad_config_is_one_line_naming_file_field_and_rule(
+    tmp_path: Path, mutate, field: str, rule: str
+) -> None:
+    data = _energies()
+    mutate(data)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_site(bad)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"{bad}: {field}"), msg
+    assert rule in msg
+    result = runner.invoke(app, ["config", "check", str(bad)])
+    assert result.exit_code == 2
+    assert result.output.count("\n") == 1 and "Traceback" not in result.output
+
+
+def test_unreadable_and_invalid_yaml(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_site(tmp_path / "missing.yaml")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("plant: [unclosed\n")
+    with pytest.raises(ConfigError, match=r"broken.yaml: line \d+: invalid YAML"):
+        load_site(broken)
+    with pytest.raises(ConfigError, match="expected a mapping"):
+        site_from_mapping([1, 2], "list.yaml")
+
+
+def test_environment_overrides_endpoints() -> None:
+    site = load_site(
+        ROOT / "configs/three_tank_energies_sim.yaml",
+        env={"TANKLAB_PLANT_URL": "opc.tcp://plant:5000/tanklab/plant", "TANKLAB_PLC_URL": ""},
+    )
+    assert site.endpoints.plant.host == "plant" and site.endpoints.plant.port == 5000
+    assert site.endpoints.plc.port == 4841
+    with pytest.raises(ConfigError, match="TANKLAB_SUPERVISOR_URL"):
+        load_site(ROOT / "configs/three_tank_energies_sim.yaml", env={"TANKLAB_SUPERVISOR_URL": "http://x"})
+    with pytest.raises(ValueError):
+        parse_endpoint_url("opc.tcp://host:99999")
+
+
+def test_speed_pump_map_has_a_dead_zone_and_inverts() -> None:
+    pump = PumpSpec(
+        name="P1",
+        feeds="T1",
+        command_kind="speed",
+        command_max=1350,
+        slope=2e-7,
+        offset_m3_s=-1e-4,
+        max_flow_m3_s=1.7e-4,
+    )
+    assert pump.unit == "rpm"
+    assert pump.flow_of(400) == 0.0  # below the 500 rpm dead zone
+    assert pump.flow_of(875) == pytest.approx(7.5e-5)  # the rig's printed operating speed
+    assert pump.flow_of(5000) == pytest.approx(1.7e-4)  # saturated
+    assert pump.command_of(1.143e-5) == pytest.approx(557.15, abs=0.01)
+
+
+def test_schema_is_checked_in_and_current() -> None:
+    result = runner.invoke(app, ["config", "schema"])
+    assert result.exit_code == 0
+    checked_in = (ROOT / "docs/config-schema.json").read_text()
+    assert json.loads(result.output) == json.loads(checked_in), (
+        "run `make docs` to refresh docs/config-schema.json"
+    )
+
+
+def test_every_field_is_documented() -> None:
+    schema = json.loads(runner.invoke(app, ["config", "schema"]).output)
+    missing = [
+        f"{name}.{field}"
+        for name, model in schema["$defs"].items()
+        for field, spec in model.get("properties", {}).items()
+        if not spec.get("description")
+    ]
+    missing += [f"SiteConfig.{f}" for f, s in schema["properties"].items() if not s.get("description")]
+    assert missing == []
