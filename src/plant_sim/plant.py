@@ -1,0 +1,260 @@
+"""The simulated plant as one object: state, inputs, transmitters, switches and watchdog.
+
+:class:`PlantSimulator` is pure: it advances model time only when told (``advance(dt_s)``),
+never reads a clock, and draws noise from a seeded generator. The OPC UA server and the
+co-simulation both drive it. Setters validate their values (``ValueError`` naming the rule)
+and leave the state untouched on refusal.
+
+Pump-command watchdog: when no command has arrived for ``command_timeout_s`` of model time,
+each pump goes to its safe state (``off``: the lowest command; ``hold``: keep the last one)
+until the next command.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from plant_sim.integrate import step_adaptive, step_rk4
+from plant_sim.models import FloatArray, Flows, PlantInputs, TankNetwork, default_inputs
+from plant_sim.sensors import TransmitterBank, switch_states
+from tanklab.config import PlantConfig
+from tanklab.enums import SensorFault
+
+MAX_DISTURBANCE_M3_S = 1e-3
+"""Largest magnitude of a disturbance flow an operator may set [m^3/s] (the node's EURange)."""
+
+
+@dataclass(frozen=True)
+class Balance:
+    """Cumulative volumes since start [m^3]."""
+
+    v_in: float
+    v_out: float
+    v_leaked: float
+    v_spilled: float
+    v_stored: float
+    error: float
+
+
+class PlantSimulator:
+    """A plant of the seeds digest, stepped on model time.
+
+    Parameters
+    ----------
+    config : the plant section of a site config.
+    integrator : ``"rk4"`` (fixed sub-steps, fast) or ``"adaptive"`` (solve_ivp).
+    max_substep_s : RK4 sub-step bound [s].
+    """
+
+    def __init__(
+        self,
+        config: PlantConfig,
+        *,
+        integrator: Literal["rk4", "adaptive"] = "rk4",
+        max_substep_s: float = 0.05,
+    ) -> None:
+        self.config = config
+        self.net = TankNetwork.from_config(config)
+        self.integrator = integrator
+        self.max_substep_s = max_substep_s
+        self.inputs = default_inputs(self.net, config)
+        levels0 = np.array([t.initial_level_m for t in config.tanks])
+        self.x = self.net.initial_state(levels0, self.net.pump_target_flows(self.inputs.pump_commands))
+        self.stored0_m3 = self.net.stored_volume(self.x)
+        self.t_s = 0.0
+        self.transmitters = TransmitterBank.from_config(config)
+        sw = [t.switch_levels() for t in config.tanks]
+        self._sw_high = np.array([s.high_m for s in sw])
+        self._sw_low = np.array([s.low_m for s in sw])
+        self.readings = self.transmitters.read(self.levels, self.t_s)
+        self.command_timeout_s = config.watchdog.command_timeout_s
+        self.safe_state = config.watchdog.safe_state
+        self.last_command_s = 0.0
+        self.watchdog_tripped = False
+        self._commanded = self.inputs.pump_commands.copy()
+
+    # ---- views --------------------------------------------------------------------------
+
+    @property
+    def levels(self) -> FloatArray:
+        """True levels [m]."""
+        return self.net.levels(self.x).copy()
+
+    @property
+    def pump_flows(self) -> FloatArray:
+        """Actual pump flows [m^3/s]."""
+        return self.flows().pumps
+
+    @property
+    def commands(self) -> FloatArray:
+        """Pump commands as last written (before any watchdog safe state) [pump units]."""
+        return self._commanded.copy()
+
+    def flows(self) -> Flows:
+        """All flows at the current state."""
+        return self.net.flows(self.x, self.inputs)
+
+    def switches(self) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        """(LSH, LSL) per tank."""
+        return switch_states(self.levels, self._sw_high, self._sw_low)
+
+    def balance(self) -> Balance:
+        """The volume balance since start."""
+        v_in, v_out, v_leak, v_spill = (float(v) for v in self.net.volumes(self.x))
+        stored = self.net.stored_volume(self.x)
+        return Balance(v_in, v_out, v_leak, v_spill, stored, self.net.balance_error(self.x, self.stored0_m3))
+
+    # ---- inputs (validated) -------------------------------------------------------------
+
+    def _index(self, names: tuple[str, ...], name: str, what: str) -> int:
+        try:
+            return names.index(name)
+        except ValueError:
+            raise KeyError(f"unknown {what} {name!r}; known: {', '.join(names)}") from None
+
+    @staticmethod
+    def _finite(value: float, what: str) -> float:
+        v = float(value)
+        if not math.isfinite(v):
+            raise ValueError(f"{what} must be finite, got {value!r}")
+        return v
+
+    def set_command(self, pump: str, command: float) -> None:
+        """Command pump ``pump`` in its unit; must lie in [command_min, command_max]."""
+        j = self._index(self.net.pump_names, pump, "pump")
+        v = self._finite(command, f"{pump} command")
+        lo, hi = self.net.pump_cmd_min[j], self.net.pump_cmd_max[j]
+        if not lo <= v <= hi:
+            raise ValueError(f"{pump} command {v:g} outside [{lo:g}, {hi:g}]")
+        self._commanded[j] = v
+        self.last_command_s = self.t_s
+        self.watchdog_tripped = False
+        self._apply_commands()
+
+    def set_commands(self, commands: FloatArray) -> None:
+        """Command every pump at once (validated as a whole: all or nothing)."""
+        c = np.asarray(commands, dtype=float)
+        if c.shape != (self.net.n_pumps,):
+            raise ValueError(f"commands need {self.net.n_pumps} values, got shape {c.shape}")
+        if not np.all(np.isfinite(c)):
+            raise ValueError("commands must be finite")
+        if np.any(c < self.net.pump_cmd_min) or np.any(c > self.net.pump_cmd_max):
+            raise ValueError("a command lies outside its pump's range")
+        self._commanded = c.copy()
+        self.last_command_s = self.t_s
+        self.watchdog_tripped = False
+        self._apply_commands()
+
+    def _apply_commands(self) -> None:
+        cmd = self._commanded
+        if self.watchdog_tripped and self.safe_state == "off":
+            cmd = self.net.pump_cmd_min.copy()
+        self.inputs = PlantInputs(
+            cmd.copy(), self.inputs.valve_openings, self.inputs.leak_openings, self.inputs.disturbances_m3_s
+        )
+
+    def _opening(self, value: float, what: str) -> float:
+        v = self._finite(value, what)
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"{what} {v:g} outside [0, 1]")
+        return v
+
+    def set_valve(self, valve: str, opening: float) -> None:
+        """Set the opening 0..1 of valve ``valve`` (V13, V32, V20, ...)."""
+        k = self._index(self.net.valve_names, valve, "valve")
+        v = self._opening(opening, f"{valve} opening")
+        op = self.inputs.valve_openings.copy()
+        op[k] = v
+        self.inputs = PlantInputs(
+            self.inputs.pump_commands, op, self.inputs.leak_openings, self.inputs.disturbances_m3_s
+        )
+
+    def set_leak(self, tank: str, opening: float) -> None:
+        """Set the leak valve opening 0..1 of tank ``tank``."""
+        i = self._index(self.net.tank_names, tank, "tank")
+        v = self._opening(opening, f"{tank} leak opening")
+        op = self.inputs.leak_openings.copy()
+        op[i] = v
+        self.inputs = PlantInputs(
+            self.inputs.pump_commands, self.inputs.valve_openings, op, self.inputs.disturbances_m3_s
+        )
+
+    def set_disturbance(self, tank: str, flow_m3_s: float) -> None:
+        """Set the extra inflow (+) or outflow (-) of tank ``tank`` [m^3/s]."""
+        i = self._index(self.net.tank_names, tank, "tank")
+        v = self._finite(flow_m3_s, f"{tank} disturbance")
+        if abs(v) > MAX_DISTURBANCE_M3_S:
+            raise ValueError(
+                f"{tank} disturbance {v:g} outside [-{MAX_DISTURBANCE_M3_S:g}, {MAX_DISTURBANCE_M3_S:g}]"
+            )
+        d = self.inputs.disturbances_m3_s.copy()
+        d[i] = v
+        self.inputs = PlantInputs(
+            self.inputs.pump_commands, self.inputs.valve_openings, self.inputs.leak_openings, d
+        )
+
+    def set_fault(self, transmitter: str, fault: SensorFault | int, value: float | None = None) -> None:
+        """Inject a fault on ``LT{i}``; ``value`` is the bias [m] or drift rate [m/s]."""
+        i = self._index(tuple(f"LT{n[1:]}" for n in self.net.tank_names), transmitter, "transmitter")
+        try:
+            f = SensorFault(int(fault))
+        except ValueError:
+            raise ValueError(
+                f"unknown fault {fault!r}; known: {', '.join(m.name for m in SensorFault)}"
+            ) from None
+        v = self.transmitters.fault_value[i] if value is None else self._finite(value, "fault value")
+        self.transmitters.set_fault(i, f, v, self.t_s)
+
+    # ---- time ---------------------------------------------------------------------------
+
+    def advance(self, dt_s: float) -> FloatArray:
+        """Integrate ``dt_s`` seconds of model time; return the new transmitter readings [m]."""
+        if self.t_s - self.last_command_s >= self.command_timeout_s and not self.watchdog_tripped:
+            self.watchdog_tripped = True
+            self._apply_commands()
+        if self.integrator == "rk4":
+            self.x = step_rk4(
+                self.net, self.x, self.inputs, dt_s, t_s=self.t_s, max_substep_s=self.max_substep_s
+            )
+        else:
+            self.x = step_adaptive(self.net, self.x, self.inputs, dt_s, t_s=self.t_s)
+        self.t_s += dt_s
+        self.readings = self.transmitters.read(self.levels, self.t_s)
+        return self.readings.copy()
+
+    # ---- checkpoints --------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        """A JSON-able checkpoint: time, state vector, inputs, stored volume at start."""
+        return {
+            "t_s": self.t_s,
+            "x": self.x.tolist(),
+            "stored0_m3": self.stored0_m3,
+            "pump_commands": self._commanded.tolist(),
+            "valve_openings": self.inputs.valve_openings.tolist(),
+            "leak_openings": self.inputs.leak_openings.tolist(),
+            "disturbances_m3_s": self.inputs.disturbances_m3_s.tolist(),
+        }
+
+    def restore(self, snap: dict[str, Any]) -> None:
+        """Resume from :meth:`snapshot` output (shapes checked; a mismatch raises ValueError)."""
+        x = np.asarray(snap["x"], dtype=float)
+        if x.shape != (self.net.n_states,):
+            raise ValueError(f"checkpoint state has shape {x.shape}, this plant needs ({self.net.n_states},)")
+        self.x = x
+        self.t_s = float(snap["t_s"])
+        self.stored0_m3 = float(snap["stored0_m3"])
+        self._commanded = np.asarray(snap["pump_commands"], dtype=float)
+        self.inputs = PlantInputs(
+            self._commanded.copy(),
+            np.asarray(snap["valve_openings"], dtype=float),
+            np.asarray(snap["leak_openings"], dtype=float),
+            np.asarray(snap["disturbances_m3_s"], dtype=float),
+        )
+        self.last_command_s = self.t_s
+        self.readings = self.transmitters.read(self.levels, self.t_s)

@@ -1,0 +1,105 @@
+"""The plant's real-time loop: advance the simulator on the wall clock, publish, checkpoint.
+
+Every ``tick_s`` of wall time (on deadlines: next = previous + tick), the simulator advances by
+``tick_s * speed`` seconds of model time and the server publishes the new state. In lock-step
+the loop does not advance the model: ``Plant.Sim.Advance`` does, driven by the PLC.
+
+The clock is injected (:class:`tanklab.clock.Clock`), so tests may drive it. A checkpoint of the
+model state is written to the configured state file every ``checkpoint_s`` of wall time and on
+stop, and read back at start: water does not vanish when the simulator restarts.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+from pathlib import Path
+
+from plant_sim.plant import PlantSimulator
+from plant_sim.server import PlantServer
+from tanklab.clock import Clock, Deadlines, MonotonicClock
+from tanklab.config import SiteConfig
+
+log = logging.getLogger(__name__)
+
+WALL_FLOOR_S = 1.0
+"""Model-time timeouts never fire faster than this in wall time (architecture: Speed)."""
+
+
+def load_checkpoint(sim: PlantSimulator, path: Path) -> bool:
+    """Restore ``sim`` from ``path`` if it exists; a broken file is reported and ignored."""
+    if not path.exists():
+        return False
+    try:
+        sim.restore(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError, KeyError) as e:
+        log.warning("ignoring unreadable plant checkpoint %s: %s", path, e)
+        return False
+    log.info("resumed plant state from %s at t = %.1f s", path, sim.t_s)
+    return True
+
+
+def save_checkpoint(sim: PlantSimulator, path: Path) -> None:
+    """Write the checkpoint atomically (temp file, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(sim.snapshot()), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+async def run_plant(
+    site: SiteConfig,
+    *,
+    host: str,
+    port: int,
+    speed: float = 1.0,
+    lockstep: bool = False,
+    stop: asyncio.Event,
+    clock: Clock | None = None,
+    tick_s: float = 0.1,
+    checkpoint_s: float = 5.0,
+    state_file: Path | None = None,
+    ready: asyncio.Event | None = None,
+) -> PlantServer:
+    """Serve the plant until ``stop`` is set; return the (stopped) server for inspection."""
+    if not speed > 0:
+        raise ValueError(f"speed must be > 0, got {speed}")
+    clock = clock or MonotonicClock()
+    sim = PlantSimulator(site.plant)
+    # A large speed must not turn scheduling noise into a watchdog trip: floor in wall time.
+    sim.command_timeout_s = max(site.plant.watchdog.command_timeout_s, WALL_FLOOR_S * speed)
+    if state_file is None and site.plant.state_file:
+        state_file = Path(site.plant.state_file)
+    if state_file is not None:
+        load_checkpoint(sim, state_file)
+    server = PlantServer(site, sim, host, port, lockstep=lockstep)
+    await server.start()
+    await server.publish_speed(0.0 if lockstep else speed)
+    if ready is not None:
+        ready.set()
+    deadlines = Deadlines(period_s=tick_s, next_deadline=clock.now() + tick_s)
+    last_checkpoint = clock.now()
+    try:
+        while not stop.is_set():
+            sleeper = asyncio.ensure_future(clock.sleep_until(deadlines.next_deadline))
+            stopper = asyncio.ensure_future(stop.wait())
+            await asyncio.wait({sleeper, stopper}, return_when=asyncio.FIRST_COMPLETED)
+            for fut in (sleeper, stopper):
+                fut.cancel()
+            if stop.is_set():
+                break
+            deadlines.started(clock.now())
+            if not lockstep:
+                sim.advance(tick_s * speed)
+                await server.publish()
+            if state_file is not None and clock.now() - last_checkpoint >= checkpoint_s:
+                save_checkpoint(sim, state_file)
+                last_checkpoint = clock.now()
+            deadlines.finished(clock.now())
+    finally:
+        if state_file is not None:
+            save_checkpoint(sim, state_file)
+        await server.stop()
+    return server
