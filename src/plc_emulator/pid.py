@@ -1,0 +1,659 @@
+"""MIMO discrete PID in velocity form, one loop per actuator (digest 2.1).
+
+Per scan k (scan period Ts [s]), for loop j with working setpoint w_j and measured PV y_j::
+
+    e_j(k) = s_j (w_j(k) - y_j(k))          s_j = +1 reverse acting (default), -1 direct acting
+    d_j(k) = alpha d_j(k-1) + (1 - alpha) (e_j(k) - e_j(k-1)) / Ts        (filtered de/dt)
+    alpha  = Tf / (Tf + Ts)      (backward-Euler discretisation of 1 / (Tf s + 1); Tf = 0 gives alpha = 0)
+
+and for actuator i::
+
+    dP_i = sum_j Kp_ij (e_j(k) - e_j(k-1))
+    dI_i = sum_j Ki_ij Ts e_j(k)
+    dD_i = sum_j Kd_ij (d_j(k) - d_j(k-1))
+    u_i(k) = sat_[u_min, u_max]( ratelimit_du_max( u_i(k-1) + dP_i + dI_i + dD_i ) )
+
+With Tf = 0 the D increment is exactly (Kd_ij / Ts)(e_j(k) - 2 e_j(k-1) + e_j(k-2)), the
+digest's form. u_i(k-1) is always the value actually applied (after clamping and rate limiting,
+in every mode), so clamping is anti-windup by itself and gain changes are bumpless.
+
+Units: e and PV in the PV's unit (m), u in the actuator's unit (m^3/s or rpm), Kp in u per PV
+unit, Ki in u per (PV unit s), Kd in u s per PV unit, Ts and Tf in s, the setpoint ramp rate in
+PV units per s, the output rate limit du_max in u per scan.
+
+Loops are indexed 0..n-1; loop j drives actuator j (so gain matrices are n x n, diagonal for
+decentralised PID, off-diagonal entries couple loop j's error into actuator i).
+
+Modes (``tanklab.enums.LoopMode``), per loop: MANUAL applies the held manual value, AUTO the law
+above, REMOTE the held remote value (written by the supervisor). The error memory is updated in
+every mode; entering MANUAL or REMOTE without a value initialises the held value to the applied
+MV; entering AUTO continues from the applied MV with the normal increment. Rate limit and clamping
+apply in every mode.
+
+PV quality: a loop whose PV is flagged bad (or is not finite) contributes no increment and its
+error memory is frozen; after ``pv_bad_scans`` consecutive bad scans a loop in AUTO or REMOTE
+applies its substitute (``hold``: keep the applied MV; ``value``: go to ``substitute_mv`` at the
+rate limit). On the first good scan after a bad spell the loop's memory is re-initialised to the
+current error (e(k-1) = e(k), filtered derivative 0), so it resumes from the applied MV with an
+integral-only move.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from tanklab.enums import LoopMode
+
+__all__ = ["InitMemory", "Pid", "PidConfig", "PidGains", "PidStepResult", "Substitute"]
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+Substitute = Literal["hold", "value"]
+InitMemory = Literal["zero", "first_error"]
+
+_SUBSTITUTES = ("hold", "value")
+_INIT_MEMORIES = ("zero", "first_error")
+
+
+def _float_array(name: str, value: ArrayLike) -> FloatArray:
+    """Convert to a float64 array; TypeError for non-numeric (or boolean) input."""
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be numeric, got dtype {arr.dtype}")
+    return arr.astype(np.float64)
+
+
+def _per_loop(name: str, value: float | Sequence[float], n: int) -> FloatArray:
+    """Broadcast a scalar or a length-n sequence to a float64 array of shape (n,)."""
+    arr = _float_array(name, value)
+    if arr.ndim == 0:
+        return np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must be a scalar or have shape ({n},), got shape {arr.shape}")
+    return arr.copy()
+
+
+def _check_loop(loop: int, n: int) -> int:
+    if isinstance(loop, bool) or not isinstance(loop, int | np.integer):
+        raise TypeError(f"loop must be an int, got {type(loop).__name__}")
+    if not 0 <= int(loop) < n:
+        raise ValueError(f"loop must be in [0, {n - 1}], got {loop}")
+    return int(loop)
+
+
+def _check_mode(mode: LoopMode) -> LoopMode:
+    if not isinstance(mode, LoopMode):
+        raise TypeError(f"mode must be a tanklab.enums.LoopMode, got {type(mode).__name__}")
+    return mode
+
+
+def _finite_scalar(name: str, value: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    x = float(value)
+    if not np.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {x}")
+    return x
+
+
+def _gain_matrix(name: str, value: ArrayLike, n: int | None) -> FloatArray:
+    arr = _float_array(name, value)
+    if arr.ndim == 1:
+        arr = np.diag(arr)
+    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
+        raise ValueError(
+            f"{name} must be a square (n, n) matrix or a length-n diagonal, got shape {arr.shape}"
+        )
+    if n is not None and arr.shape != (n, n):
+        raise ValueError(f"{name} must have shape ({n}, {n}), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    arr = arr.copy()
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class PidGains:
+    """Velocity-form gain matrices, shape (n_actuators, n_loops) = (n, n).
+
+    A 1-D input of length n is taken as the diagonal. Negative entries are allowed (the digest's
+    fixed PID has a negative Kd); only shape and finiteness are checked. Stored read-only.
+
+    Attributes
+    ----------
+    Kp : ndarray, shape (n, n)
+        Proportional gains [u per PV unit].
+    Ki : ndarray, shape (n, n)
+        Integral gains [u per (PV unit s)].
+    Kd : ndarray, shape (n, n)
+        Derivative gains [u s per PV unit].
+    """
+
+    Kp: FloatArray
+    Ki: FloatArray
+    Kd: FloatArray
+
+    def __post_init__(self) -> None:
+        kp = _gain_matrix("Kp", self.Kp, None)
+        n = kp.shape[0]
+        object.__setattr__(self, "Kp", kp)
+        object.__setattr__(self, "Ki", _gain_matrix("Ki", self.Ki, n))
+        object.__setattr__(self, "Kd", _gain_matrix("Kd", self.Kd, n))
+
+    @property
+    def n_loops(self) -> int:
+        """Number of loops (= actuators)."""
+        return int(self.Kp.shape[0])
+
+    @classmethod
+    def diagonal(cls, kp: Sequence[float], ki: Sequence[float], kd: Sequence[float]) -> PidGains:
+        """Decentralised gains: loop j's error drives only actuator j.
+
+        Parameters
+        ----------
+        kp, ki, kd : sequence of float, length n
+            Per-loop gains.
+        """
+        return cls(
+            np.diag(_float_array("kp", kp)), np.diag(_float_array("ki", ki)), np.diag(_float_array("kd", kd))
+        )
+
+
+@dataclass(frozen=True)
+class PidConfig:
+    """Static configuration of a `Pid` block. Scalars broadcast to every loop.
+
+    Attributes
+    ----------
+    n_loops : int
+        Number of loops n (= actuators), >= 1.
+    ts_s : float
+        Scan period Ts [s], > 0.
+    u_min, u_max : float or sequence of n floats
+        Output limits per actuator [u], finite, u_min < u_max.
+    du_max : float or sequence, optional
+        Output rate limit |u(k) - u(k-1)| <= du_max per scan [u], > 0; None: no rate limit.
+    d_filter_tf_s : float
+        Derivative filter time constant Tf [s], >= 0 (0: unfiltered D).
+    sp_min, sp_max : float or sequence
+        Setpoint limits [PV unit], sp_min <= sp_max (infinite allowed). Targets outside are clamped.
+    sp_rate : float or sequence, optional
+        Setpoint ramp rate [PV unit per s], > 0: the working setpoint moves toward the target by at
+        most sp_rate Ts per scan. None: the working setpoint jumps to the target.
+    direct_acting : bool or sequence of bool
+        True for a loop whose actuator lowers its PV (e = y - w); False (default): e = w - y.
+    initial_mv : float or sequence
+        u(-1) [u], within the limits (default 0).
+    init_memory : {"zero", "first_error"}
+        "zero": e(-1) = e(-2) = 0 (the digest's reference behaviour); "first_error": e(-1) =
+        e(-2) = e(0), so the first scan makes an integral-only move.
+    pv_bad_scans : int
+        Consecutive bad-PV scans N (>= 1) after which a loop in AUTO/REMOTE applies its substitute.
+    substitute : {"hold", "value"} or sequence
+        Substitute output per loop: keep the applied MV, or drive to ``substitute_mv``.
+    substitute_mv : float or sequence
+        Safe MV for ``substitute == "value"`` [u], within the limits.
+    initial_mode : LoopMode or sequence of LoopMode
+        Mode of each loop at construction (default AUTO).
+    """
+
+    n_loops: int
+    ts_s: float
+    u_min: float | Sequence[float]
+    u_max: float | Sequence[float]
+    du_max: float | Sequence[float] | None = None
+    d_filter_tf_s: float = 0.0
+    sp_min: float | Sequence[float] = -np.inf
+    sp_max: float | Sequence[float] = np.inf
+    sp_rate: float | Sequence[float] | None = None
+    direct_acting: bool | Sequence[bool] = False
+    initial_mv: float | Sequence[float] = 0.0
+    init_memory: InitMemory = "zero"
+    pv_bad_scans: int = 3
+    substitute: Substitute | Sequence[Substitute] = "hold"
+    substitute_mv: float | Sequence[float] = 0.0
+    initial_mode: LoopMode | Sequence[LoopMode] = LoopMode.AUTO
+    _resolved: _Resolved = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_resolved", _resolve(self))
+
+
+@dataclass(frozen=True, eq=False)
+class _Resolved:
+    """Per-loop arrays derived from a `PidConfig` (validated)."""
+
+    n: int
+    ts: float
+    lo: FloatArray
+    hi: FloatArray
+    du_max: FloatArray  # inf where no rate limit
+    alpha: float
+    sp_lo: FloatArray
+    sp_hi: FloatArray
+    sp_step: FloatArray  # sp_rate * Ts, inf where no ramp
+    sign: FloatArray
+    initial_mv: FloatArray
+    first_error: bool
+    pv_bad_scans: int
+    subst_value: BoolArray
+    substitute_mv: FloatArray
+    modes: tuple[LoopMode, ...]
+
+
+def _resolve(c: PidConfig) -> _Resolved:
+    if isinstance(c.n_loops, bool) or not isinstance(c.n_loops, int):
+        raise TypeError(f"n_loops must be an int, got {type(c.n_loops).__name__}")
+    n = c.n_loops
+    if n < 1:
+        raise ValueError(f"n_loops must be >= 1, got {n}")
+    ts = _finite_scalar("ts_s", c.ts_s)
+    if ts <= 0.0:
+        raise ValueError(f"ts_s must be > 0, got {ts}")
+
+    lo = _per_loop("u_min", c.u_min, n)
+    hi = _per_loop("u_max", c.u_max, n)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise ValueError("u_min and u_max must be finite")
+    if np.any(lo >= hi):
+        raise ValueError("u_min must be < u_max for every actuator")
+
+    if c.du_max is None:
+        du = np.full(n, np.inf)
+    else:
+        du = _per_loop("du_max", c.du_max, n)
+        if np.any(np.isnan(du)) or np.any(du <= 0.0):
+            raise ValueError("du_max must be > 0 (per scan) for every actuator")
+
+    tf = _finite_scalar("d_filter_tf_s", c.d_filter_tf_s)
+    if tf < 0.0:
+        raise ValueError(f"d_filter_tf_s must be >= 0, got {tf}")
+
+    sp_lo = _per_loop("sp_min", c.sp_min, n)
+    sp_hi = _per_loop("sp_max", c.sp_max, n)
+    if np.any(np.isnan(sp_lo)) or np.any(np.isnan(sp_hi)) or np.any(sp_lo > sp_hi):
+        raise ValueError("sp_min must be <= sp_max for every loop")
+
+    if c.sp_rate is None:
+        sp_step = np.full(n, np.inf)
+    else:
+        rate = _per_loop("sp_rate", c.sp_rate, n)
+        if np.any(np.isnan(rate)) or np.any(rate <= 0.0):
+            raise ValueError("sp_rate must be > 0 [PV unit/s] for every loop")
+        sp_step = rate * ts
+
+    direct = np.asarray(c.direct_acting)
+    if direct.dtype.kind != "b":
+        raise TypeError("direct_acting must be a bool or a sequence of bools")
+    if direct.ndim == 0:
+        direct = np.full(n, bool(direct))
+    if direct.shape != (n,):
+        raise ValueError(f"direct_acting must be a bool or have shape ({n},), got {direct.shape}")
+    sign = np.where(direct, -1.0, 1.0)
+
+    u0 = _per_loop("initial_mv", c.initial_mv, n)
+    if np.any(~np.isfinite(u0)) or np.any(u0 < lo) or np.any(u0 > hi):
+        raise ValueError("initial_mv must lie within [u_min, u_max] for every actuator")
+
+    if c.init_memory not in _INIT_MEMORIES:
+        raise ValueError(f"init_memory must be one of {_INIT_MEMORIES}, got {c.init_memory!r}")
+
+    if isinstance(c.pv_bad_scans, bool) or not isinstance(c.pv_bad_scans, int):
+        raise TypeError(f"pv_bad_scans must be an int, got {type(c.pv_bad_scans).__name__}")
+    if c.pv_bad_scans < 1:
+        raise ValueError(f"pv_bad_scans must be >= 1, got {c.pv_bad_scans}")
+
+    subst_in: object = c.substitute
+    subst: list[object]
+    if isinstance(subst_in, str):
+        subst = [subst_in] * n
+    elif isinstance(subst_in, Sequence):
+        subst = list(subst_in)
+    else:
+        raise TypeError(
+            f"substitute must be a string or a sequence of strings, got {type(c.substitute).__name__}"
+        )
+    if len(subst) != n:
+        raise ValueError(f"substitute must be a string or have {n} entries, got {len(subst)}")
+    for s in subst:
+        if s not in _SUBSTITUTES:
+            raise ValueError(f"substitute must be one of {_SUBSTITUTES}, got {s!r}")
+    smv = _per_loop("substitute_mv", c.substitute_mv, n)
+    if np.any(~np.isfinite(smv)) or np.any(smv < lo) or np.any(smv > hi):
+        raise ValueError("substitute_mv must lie within [u_min, u_max] for every actuator")
+
+    if isinstance(c.initial_mode, LoopMode):
+        modes_in = [c.initial_mode] * n
+    elif isinstance(c.initial_mode, Sequence) and not isinstance(c.initial_mode, str):
+        modes_in = list(c.initial_mode)
+    else:
+        raise TypeError(
+            f"initial_mode must be a LoopMode or a sequence of them, got {type(c.initial_mode).__name__}"
+        )
+    if len(modes_in) != n:
+        raise ValueError(f"initial_mode must be a LoopMode or have {n} entries, got {len(modes_in)}")
+    modes = tuple(_check_mode(m) for m in modes_in)
+
+    return _Resolved(
+        n=n,
+        ts=ts,
+        lo=lo,
+        hi=hi,
+        du_max=du,
+        alpha=tf / (tf + ts),
+        sp_lo=sp_lo,
+        sp_hi=sp_hi,
+        sp_step=sp_step,
+        sign=sign,
+        initial_mv=u0,
+        first_error=c.init_memory == "first_error",
+        pv_bad_scans=c.pv_bad_scans,
+        subst_value=np.array([s == "value" for s in subst], dtype=bool),
+        substitute_mv=smv,
+        modes=modes,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class PidStepResult:
+    """Outcome and diagnostics of one scan. Arrays have shape (n,).
+
+    Attributes
+    ----------
+    mv : ndarray
+        Applied output u(k) per actuator [u].
+    working_sp : ndarray
+        Working setpoint w(k) per loop after limits and ramp [PV unit].
+    error : ndarray
+        e(k) per loop [PV unit] (sign-adjusted for direct action); NaN where the PV was bad.
+    p, i, d : ndarray
+        The P, I and D increments per actuator [u], computed in every mode (applied only in AUTO).
+    clamped : ndarray of bool
+        The output limits changed the value this scan.
+    rate_limited : ndarray of bool
+        The rate limit changed the value this scan.
+    pv_good : ndarray of bool
+        Whether each loop's PV was used this scan.
+    substituted : ndarray of bool
+        The loop's actuator applied the substitute output this scan.
+    modes : tuple of LoopMode
+        Mode of each loop during this scan.
+    """
+
+    mv: FloatArray
+    working_sp: FloatArray
+    error: FloatArray
+    p: FloatArray
+    i: FloatArray
+    d: FloatArray
+    clamped: BoolArray
+    rate_limited: BoolArray
+    pv_good: BoolArray
+    substituted: BoolArray
+    modes: tuple[LoopMode, ...]
+
+
+class Pid:
+    """MIMO velocity-form PID with modes, limits, setpoint ramp and PV-bad substitution.
+
+    Parameters
+    ----------
+    config : PidConfig
+        Static configuration (validated on construction).
+    gains : PidGains
+        Initial gains; shape must match ``config.n_loops``.
+
+    Notes
+    -----
+    Verbs: `step` once per scan; `set_mode`, `set_manual_mv`, `set_remote_mv`, `set_gains` and
+    `track` between scans (they take effect at the next `step`).
+    """
+
+    def __init__(self, config: PidConfig, gains: PidGains) -> None:
+        if not isinstance(config, PidConfig):
+            raise TypeError(f"config must be a PidConfig, got {type(config).__name__}")
+        if not isinstance(gains, PidGains):
+            raise TypeError(f"gains must be a PidGains, got {type(gains).__name__}")
+        r = config._resolved
+        if gains.n_loops != r.n:
+            raise ValueError(f"gains must be {r.n} x {r.n} to match n_loops, got {gains.Kp.shape}")
+        self._config = config
+        self._r = r
+        self._gains = gains
+        n = r.n
+        self._u = r.initial_mv.copy()  # u(k-1), the applied value
+        self._e_prev = np.zeros(n)  # e(k-1)
+        self._d_prev = np.zeros(n)  # filtered derivative d(k-1)
+        self._needs_init = np.full(n, r.first_error)  # re-initialise memory to e(k) on next good scan
+        self._w = np.zeros(n)  # working setpoint
+        self._started = False
+        self._modes = list(r.modes)
+        self._manual = r.initial_mv.copy()
+        self._remote = r.initial_mv.copy()
+        self._bad_count = np.zeros(n, dtype=np.int64)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def config(self) -> PidConfig:
+        """The block's configuration."""
+        return self._config
+
+    @property
+    def n_loops(self) -> int:
+        """Number of loops (= actuators)."""
+        return self._r.n
+
+    @property
+    def gains(self) -> PidGains:
+        """Gains that the next `step` applies."""
+        return self._gains
+
+    @property
+    def mv(self) -> FloatArray:
+        """Applied MV u(k-1) per actuator [u] (copy)."""
+        return self._u.copy()
+
+    @property
+    def modes(self) -> tuple[LoopMode, ...]:
+        """Current mode per loop."""
+        return tuple(self._modes)
+
+    @property
+    def manual_mv(self) -> FloatArray:
+        """Held manual value per loop [u] (copy)."""
+        return self._manual.copy()
+
+    @property
+    def remote_mv(self) -> FloatArray:
+        """Held remote value per loop [u] (copy)."""
+        return self._remote.copy()
+
+    @property
+    def working_sp(self) -> FloatArray:
+        """Working setpoint per loop after the last step [PV unit] (copy; zeros before the first step)."""
+        return self._w.copy()
+
+    @property
+    def pv_bad_count(self) -> NDArray[np.int64]:
+        """Consecutive bad-PV scans per loop (copy)."""
+        return self._bad_count.copy()
+
+    # ------------------------------------------------------------------ verbs
+    def set_gains(self, Kp: ArrayLike, Ki: ArrayLike, Kd: ArrayLike) -> None:
+        """Replace the gains from the next `step` on (all three validated before any is applied).
+
+        Parameters
+        ----------
+        Kp, Ki, Kd : array_like, shape (n, n) or (n,)
+            Finite gain matrices (a 1-D input is the diagonal).
+
+        Raises
+        ------
+        ValueError
+            Wrong shape or a non-finite entry; the old gains stay.
+        """
+        n = self._r.n
+        new = PidGains(_gain_matrix("Kp", Kp, n), _gain_matrix("Ki", Ki, n), _gain_matrix("Kd", Kd, n))
+        self._gains = new
+
+    def set_mode(self, loop: int, mode: LoopMode, mv: float | None = None) -> None:
+        """Switch one loop's mode, bumplessly.
+
+        Parameters
+        ----------
+        loop : int
+            Loop index in [0, n).
+        mode : LoopMode
+            New mode.
+        mv : float, optional
+            For MANUAL / REMOTE: the held value to apply (clamped to the limits). Omitted: the held
+            value is initialised to the applied MV (tracking), so the switch does not move the MV.
+            Must be omitted for AUTO.
+        """
+        j = _check_loop(loop, self._r.n)
+        mode = _check_mode(mode)
+        if mode is LoopMode.AUTO:
+            if mv is not None:
+                raise ValueError("mv applies only to MANUAL and REMOTE; AUTO continues from the applied MV")
+        else:
+            held = self._u[j] if mv is None else self._clamp(j, _finite_scalar("mv", mv))
+            if mode is LoopMode.MANUAL and (self._modes[j] is not LoopMode.MANUAL or mv is not None):
+                self._manual[j] = held
+            if mode is LoopMode.REMOTE and (self._modes[j] is not LoopMode.REMOTE or mv is not None):
+                self._remote[j] = held
+        self._modes[j] = mode
+
+    def set_manual_mv(self, loop: int, mv: float) -> None:
+        """Set the held manual value of one loop [u] (clamped to the limits; applied in MANUAL)."""
+        j = _check_loop(loop, self._r.n)
+        self._manual[j] = self._clamp(j, _finite_scalar("mv", mv))
+
+    def set_remote_mv(self, loop: int, mv: float) -> None:
+        """Set the held remote value of one loop [u] (clamped to the limits; applied in REMOTE)."""
+        j = _check_loop(loop, self._r.n)
+        self._remote[j] = self._clamp(j, _finite_scalar("mv", mv))
+
+    def track(self, loop: int, mv: float) -> None:
+        """Tell the block where an actuator really is (e.g. after an interlock forced it).
+
+        The applied-MV memory u(k-1) becomes ``mv`` (clamped), so the next AUTO move is a normal
+        increment from it and the rate limit counts from it. The held manual/remote values are
+        not changed.
+        """
+        j = _check_loop(loop, self._r.n)
+        self._u[j] = self._clamp(j, _finite_scalar("mv", mv))
+
+    def step(self, sp: ArrayLike, pv: ArrayLike, pv_good: ArrayLike | None = None) -> PidStepResult:
+        """Run one scan.
+
+        Parameters
+        ----------
+        sp : array_like, shape (n,)
+            Target setpoints [PV unit], finite (clamped to [sp_min, sp_max], then ramped).
+        pv : array_like, shape (n,)
+            Measured PVs [PV unit]; a non-finite PV counts as bad.
+        pv_good : array_like of bool, shape (n,), optional
+            PV quality from the scan engine (Bad status, frozen value, out of range: False).
+            Default: all good.
+
+        Returns
+        -------
+        PidStepResult
+            Applied MV and diagnostics.
+        """
+        r = self._r
+        n = r.n
+        sp_arr = _float_array("sp", sp)
+        if sp_arr.shape != (n,):
+            raise ValueError(f"sp must have shape ({n},), got {sp_arr.shape}")
+        if not np.all(np.isfinite(sp_arr)):
+            raise ValueError("sp must be finite")
+        pv_arr = _float_array("pv", pv)
+        if pv_arr.shape != (n,):
+            raise ValueError(f"pv must have shape ({n},), got {pv_arr.shape}")
+        if pv_good is None:
+            good_in = np.ones(n, dtype=bool)
+        else:
+            good_in = np.asarray(pv_good)
+            if good_in.dtype.kind != "b":
+                raise TypeError("pv_good must be booleans")
+            if good_in.shape != (n,):
+                raise ValueError(f"pv_good must have shape ({n},), got {good_in.shape}")
+        good = good_in & np.isfinite(pv_arr)
+        g = self._gains
+        ts = r.ts
+
+        # Working setpoint: clamp the target, then ramp toward it.
+        target = np.clip(sp_arr, r.sp_lo, r.sp_hi)
+        if self._started:
+            self._w = self._w + np.clip(target - self._w, -r.sp_step, r.sp_step)
+        else:
+            self._w = target.copy()
+            self._started = True
+        w = self._w
+
+        # PV quality.
+        self._bad_count = np.where(good, 0, self._bad_count + 1)
+        subst_loop = (~good) & (self._bad_count >= r.pv_bad_scans)
+
+        # Errors; a bad loop contributes nothing and its memory is frozen.
+        e = np.where(good, r.sign * (w - np.where(good, pv_arr, 0.0)), np.nan)
+        reinit = good & self._needs_init
+        self._e_prev = np.where(reinit, e, self._e_prev)
+        self._d_prev = np.where(reinit, 0.0, self._d_prev)
+        self._needs_init = self._needs_init & ~reinit
+
+        e_used = np.where(good, e, 0.0)
+        de = np.where(good, e_used - self._e_prev, 0.0)
+        d_new = np.where(good, r.alpha * self._d_prev + (1.0 - r.alpha) * de / ts, self._d_prev)
+        dd = d_new - self._d_prev
+
+        p = g.Kp @ de
+        i = g.Ki @ (ts * e_used)
+        d = g.Kd @ dd
+        u_prev = self._u
+        u_auto = u_prev + p + i + d
+
+        # Select by mode; AUTO and REMOTE fall back to the substitute after N bad scans.
+        modes = tuple(self._modes)
+        auto = np.array([m is LoopMode.AUTO for m in modes])
+        remote = np.array([m is LoopMode.REMOTE for m in modes])
+        raw = np.where(auto, u_auto, np.where(remote, self._remote, self._manual))
+        substituted = subst_loop & (auto | remote)
+        subst_out = np.where(r.subst_value, r.substitute_mv, u_prev)
+        raw = np.where(substituted, subst_out, raw)
+        raw = np.where(np.isnan(raw), u_prev, raw)  # overflowing products (inf - inf): hold
+
+        limited = np.clip(raw, u_prev - r.du_max, u_prev + r.du_max)
+        rate_limited = limited != raw
+        u = np.clip(limited, r.lo, r.hi)
+        clamped = u != limited
+
+        self._u = u
+        self._e_prev = np.where(good, e_used, self._e_prev)
+        self._d_prev = d_new
+        self._needs_init = self._needs_init | ~good
+
+        return PidStepResult(
+            mv=u.copy(),
+            working_sp=w.copy(),
+            error=e,
+            p=p,
+            i=i,
+            d=d,
+            clamped=clamped,
+            rate_limited=rate_limited,
+            pv_good=good,
+            substituted=substituted,
+            modes=modes,
+        )
+
+    # ------------------------------------------------------------------ helpers
+    def _clamp(self, j: int, value: float) -> float:
+        return float(min(max(value, self._r.lo[j]), self._r.hi[j]))
