@@ -1,0 +1,1214 @@
+"""MPC-based PID gain adaptation with admissibility guards (seeds digest 2.1, 2.3, 2.4).
+
+The PLC runs, every scan ``k`` of period ``Ts`` [s], the velocity-form MIMO PID (digest 2.1) with
+``e_j = r_j - y_j`` (setpoint minus measured level, [m])::
+
+    u_i(k) = u_i(k-1) + sum_j [ Kp_ij De_j(k) + Ki_ij Ts e_j(k) + (Kd_ij / Ts) D2e_j(k) ]
+    De_j(k)  = e_j(k) - e_j(k-1),   D2e_j(k) = e_j(k) - 2 e_j(k-1) + e_j(k-2)
+
+with ``u(k-1)`` the clamped, applied output. The supervisor's MPC runs in the shadow from the
+measured state and proposes ``u_MPC(k)``. For each pump ``i`` an :class:`~tanklab.rls.ExpForgettingRls`
+fits that pump's gains so that the PID increment reproduces the MPC's move from where the actuator
+really is::
+
+    y_i(k)   = u_i,MPC(k) - u_i,applied(k-1)                                  [pump unit]
+    psi_i(k) = [ De_j, Ts e_j, D2e_j / Ts  for each loop j the pump uses ]
+    theta_i  = [ Kp_ij, Ki_ij, Kd_ij       for each loop j the pump uses ]
+    y_i(k)   = psi_i(k)' theta_i
+
+Two corrections to the paper (digest 2.4): the third regressor slot is ``D2e / Ts`` (the paper's
+``De / Ts`` makes the Kp and Kd columns proportional), and the target is the MPC input minus the
+*applied* input (the paper's ``u_MPC(k) - u_MPC(k-1)`` is right only when the MPC drives).
+Diagonal mode (default, the paper's and the PLC's ``SetGains(Kp, Ki, Kd)`` per loop) uses only the
+pump's own loop; full MIMO uses every loop (``3 * n_loops`` parameters per pump).
+
+The RLS runs on dimensionless parameters so one set of defaults fits every unit system: with
+``E`` the error scale (config, units of ``e``) and ``U_i = u_max,i - u_min,i``::
+
+    theta_hat = [Kp, Ki Ts, Kd / Ts] * E / U_i      x_hat = [De, e, D2e] / E      y_hat = y / U_i
+
+so that ``x_hat' theta_hat = y_hat`` exactly.
+
+A candidate gain set (all pumps) is proposed every push period and returned for pushing only when
+it passes every admissibility guard (:class:`RejectReason`), which replace the paper's vacuous
+"u inside the input set" condition: finite; inside the gain box; signs (own loop ``Kp >= 0``,
+``Ki >= Ki_min > 0``); rate limit per push; closed-loop spectral radius of the ZOH model with the
+candidate PID below ``max_spectral_radius``; and the unclamped input of the linear closed loop,
+simulated from the current state, inside ``[u_min, u_max]``. The closed-loop matrix is derived in
+:func:`closed_loop_matrix`.
+
+This module is pure: model time ``t_s`` [s] and the PLC scan counter are arguments; no clock, no
+I/O, no logging.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from tanklab.rls import ExpForgettingRls
+
+__all__ = [
+    "AdaptationConfig",
+    "AdapterDiagnostics",
+    "Decision",
+    "GainBox",
+    "LoopModel",
+    "PidGainAdapter",
+    "PidGains",
+    "PumpDiagnostics",
+    "RejectReason",
+    "SampleStatus",
+    "closed_loop_matrix",
+    "closed_loop_spectral_radius",
+    "input_bound_violation",
+    "simulate_pid_inputs",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Relative tolerance on the rate limit and on the input-bound comparison (rounding only).
+_REL_TOL = 1e-9
+
+
+class RejectReason(StrEnum):
+    """Why a candidate gain set was rejected, in the order the guards are reported."""
+
+    NON_FINITE = "non_finite"
+    OUTSIDE_BOX = "outside_box"
+    SIGN = "sign"
+    RATE_LIMIT = "rate_limit"
+    UNSTABLE = "unstable"
+    INPUT_BOUNDS = "input_bounds"
+
+
+class SampleStatus(StrEnum):
+    """What :meth:`PidGainAdapter.observe` did with one scan's readings."""
+
+    FORMED = "formed"  # a regression sample was formed and offered to every pump's RLS
+    WARMUP = "warmup"  # first readings after start: history not yet three scans long
+    GAP = "gap"  # the window spans a gap in the scan counter: dropped, counted
+    INVALID = "invalid"  # non-finite SP, PV or MV: dropped, counted, history restarts
+    DUPLICATE = "duplicate"  # same scan number as the previous reading: ignored
+
+
+def _matrix(value: ArrayLike, name: str, shape: tuple[int, ...] | None = None) -> FloatArray:
+    arr = np.array(value, dtype=np.float64, ndmin=1)
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    return arr
+
+
+def _finite(arr: FloatArray, name: str) -> FloatArray:
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite")
+    return arr
+
+
+def _positive(value: float, name: str, *, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v) or v < 0.0 or (v == 0.0 and not allow_zero):
+        rule = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be finite and {rule}, got {v!r}")
+    return v
+
+
+# --------------------------------------------------------------------------- value types
+@dataclass(frozen=True, eq=False)
+class PidGains:
+    """Velocity-form PID gains of all pumps, each an (n_u, n_loops) matrix.
+
+    Attributes
+    ----------
+    kp : ndarray, shape (n_u, n_loops)
+        Proportional gains [pump unit / error unit].
+    ki : ndarray, shape (n_u, n_loops)
+        Integral gains [pump unit / (error unit s)].
+    kd : ndarray, shape (n_u, n_loops)
+        Derivative gains [pump unit s / error unit].
+
+    The arrays are read-only float64 copies; values are not checked (a candidate may be
+    non-finite: the guards say so).
+    """
+
+    kp: FloatArray
+    ki: FloatArray
+    kd: FloatArray
+
+    def __post_init__(self) -> None:
+        arrays = []
+        for name in ("kp", "ki", "kd"):
+            arr = np.array(getattr(self, name), dtype=np.float64)
+            if arr.ndim != 2:
+                raise ValueError(f"{name} must be a 2-D (n_u, n_loops) matrix, got shape {arr.shape}")
+            arr.setflags(write=False)
+            arrays.append(arr)
+        if not (arrays[0].shape == arrays[1].shape == arrays[2].shape):
+            raise ValueError("kp, ki and kd must have the same shape (n_u, n_loops)")
+        for name, arr in zip(("kp", "ki", "kd"), arrays, strict=True):
+            object.__setattr__(self, name, arr)
+
+    @classmethod
+    def diagonal(cls, kp: ArrayLike, ki: ArrayLike, kd: ArrayLike) -> PidGains:
+        """Diagonal gains (pump i on loop i) from per-pump vectors of shape (n,)."""
+        return cls(np.diag(np.atleast_1d(kp)), np.diag(np.atleast_1d(ki)), np.diag(np.atleast_1d(kd)))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(n_u, n_loops)``."""
+        return (int(self.kp.shape[0]), int(self.kp.shape[1]))
+
+    def stacked(self) -> FloatArray:
+        """Gains stacked as shape (3, n_u, n_loops): ``[kp, ki, kd]``."""
+        return np.stack([self.kp, self.ki, self.kd])
+
+    @classmethod
+    def from_stacked(cls, g: ArrayLike) -> PidGains:
+        """Inverse of :meth:`stacked`."""
+        arr = np.asarray(g, dtype=np.float64)
+        return cls(arr[0], arr[1], arr[2])
+
+    def is_finite(self) -> bool:
+        """True when every gain is finite."""
+        return bool(np.isfinite(self.stacked()).all())
+
+    def allclose(self, other: PidGains, *, rtol: float = 1e-12, atol: float = 0.0) -> bool:
+        """Element-wise ``numpy.allclose`` of all three matrices."""
+        return self.shape == other.shape and bool(
+            np.allclose(self.stacked(), other.stacked(), rtol=rtol, atol=atol)
+        )
+
+
+_GAIN_NAMES = ("Kp", "Ki", "Kd")
+
+
+@dataclass(frozen=True, eq=False)
+class GainBox:
+    """Per-gain admissible box ``lower <= gain <= upper`` (element-wise, may be infinite).
+
+    Attributes
+    ----------
+    lower, upper : PidGains
+        Bounds of the same shape as the gains; ``lower <= upper`` everywhere, no NaN.
+    """
+
+    lower: PidGains
+    upper: PidGains
+
+    def __post_init__(self) -> None:
+        if self.lower.shape != self.upper.shape:
+            raise ValueError("GainBox lower and upper must have the same shape")
+        lo, hi = self.lower.stacked(), self.upper.stacked()
+        if np.isnan(lo).any() or np.isnan(hi).any():
+            raise ValueError("GainBox bounds must not be NaN")
+        if (lo > hi).any():
+            raise ValueError("GainBox lower must be <= upper for every gain")
+
+    def contains(self, gains: PidGains) -> bool:
+        """True when every gain lies inside the box."""
+        g = gains.stacked()
+        return bool(((g >= self.lower.stacked()) & (g <= self.upper.stacked())).all())
+
+
+@dataclass(frozen=True, eq=False)
+class LoopModel:
+    """Discrete (ZOH) linear model of the plant around an equilibrium, with the loops' outputs.
+
+    ``x(k+1) - x_op = A (x(k) - x_op) + B (u(k) - u_op)``, loop outputs ``y = C x``.
+
+    Attributes
+    ----------
+    A : ndarray, shape (n_x, n_x)
+        State matrix (levels [m]).
+    B : ndarray, shape (n_x, n_u)
+        Input matrix [m per pump unit].
+    C : ndarray, shape (n_loops, n_x)
+        Loop output matrix: row j selects the PV of loop j.
+    ts_s : float
+        Sample time [s], the PLC scan the PID runs at.
+    u_min, u_max : ndarray, shape (n_u,)
+        Actuator bounds [pump unit], finite, ``u_min < u_max``.
+    x_op : ndarray, shape (n_x,)
+        Equilibrium state; zeros by default (an empty array means the default).
+    u_op : ndarray, shape (n_u,)
+        Equilibrium input; zeros by default (an empty array means the default).
+    """
+
+    A: FloatArray
+    B: FloatArray
+    C: FloatArray
+    ts_s: float
+    u_min: FloatArray
+    u_max: FloatArray
+    x_op: FloatArray = field(default_factory=lambda: np.zeros(0))
+    u_op: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        A = _finite(_matrix(self.A, "A"), "A")
+        if A.ndim != 2 or A.shape[0] != A.shape[1]:
+            raise ValueError(f"A must be square (n_x, n_x), got shape {A.shape}")
+        n = A.shape[0]
+        B = _finite(_matrix(self.B, "B"), "B")
+        if B.ndim != 2 or B.shape[0] != n:
+            raise ValueError(f"B must have shape ({n}, n_u), got {B.shape}")
+        m = B.shape[1]
+        C = _finite(_matrix(self.C, "C"), "C")
+        if C.ndim != 2 or C.shape[1] != n:
+            raise ValueError(f"C must have shape (n_loops, {n}), got {C.shape}")
+        ts = _positive(self.ts_s, "ts_s")
+        u_min = _finite(_matrix(self.u_min, "u_min", (m,)), "u_min")
+        u_max = _finite(_matrix(self.u_max, "u_max", (m,)), "u_max")
+        if not (u_min < u_max).all():
+            raise ValueError("u_min must be < u_max for every pump")
+        x_op = np.zeros(n) if np.size(self.x_op) == 0 else _finite(_matrix(self.x_op, "x_op", (n,)), "x_op")
+        u_op = np.zeros(m) if np.size(self.u_op) == 0 else _finite(_matrix(self.u_op, "u_op", (m,)), "u_op")
+        for name, arr in (
+            ("A", A),
+            ("B", B),
+            ("C", C),
+            ("u_min", u_min),
+            ("u_max", u_max),
+            ("x_op", x_op),
+            ("u_op", u_op),
+        ):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "ts_s", ts)
+
+    @property
+    def n_x(self) -> int:
+        """Number of states."""
+        return int(self.A.shape[0])
+
+    @property
+    def n_u(self) -> int:
+        """Number of pumps."""
+        return int(self.B.shape[1])
+
+    @property
+    def n_loops(self) -> int:
+        """Number of loops (PID errors)."""
+        return int(self.C.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class AdaptationConfig:
+    """Settings of :class:`PidGainAdapter`; every default is stated with its reason.
+
+    Attributes
+    ----------
+    memory_s : float, default 60.0
+        RLS memory [s]; ``lambda = exp(-Ts / memory_s)`` = 0.9835 at Ts = 1 s (digest 2.3: Tmem of
+        30 to 100 s, lambda 0.98 to 0.99 per 1 s sample).
+    p0 : float, default 1e3
+        Initial covariance of the dimensionless parameters: a weak prior (typical ``theta_hat`` is
+        0.01 to 1).
+    trace_cap : float or None, default None
+        Cap on the covariance trace (dimensionless); None means ``n_params * p0``.
+    excitation_threshold : float, default 1e-3
+        Dead zone on the change of the dimensionless regressor since the last applied update:
+        1e-3 is 0.1 mm of error change at ``error_scale`` = 0.1 m.
+    error_scale : float, default 0.1
+        ``E`` [error unit] used to make the RLS dimensionless; 0.1 m is the size of a typical level
+        move (the benchmark step is 0.05 m). Use 10 for a rig whose errors are in cm.
+    push_period_s : float, default 10.0
+        Model time between proposals [s] (architecture: gain pushes every 10 s).
+    min_time_s : float, default 10.0
+        Model time from the first reading before the first proposal [s] (the paper starts
+        adapting after 10 s in simulation).
+    full_mimo : bool, default False
+        False: pump i fits only its own loop's gains (the paper; the PLC's per-loop
+        ``SetGains``). True: pump i fits gains on every loop.
+    own_loop : tuple of int or None, default None
+        Loop index paired with each pump (sign guard, diagonal mode); None means pump i <-> loop i.
+    box : GainBox or None, default None
+        Admissible gains; None means, per pump row and gain type, ``+-10 x`` the largest fixed gain
+        of that type in the row, with the entries a pump does not adapt pinned to their fixed value.
+    ki_min : float, sequence of float (n_u,) or None, default None
+        Lower bound on each pump's own-loop Ki (> 0, keeps integral action, hence zero offset under
+        leaks); None means 0.1 x the fixed own-loop Ki.
+    max_change_fraction : float, default 0.25
+        No gain may change by more than ``max(max_change_fraction * |applied|, floor)`` per push.
+    change_floor : PidGains or None, default None
+        The absolute floor of that limit, for gains at or near zero; None means
+        ``max_change_fraction * 0.1 *`` the largest fixed gain of the same type in the pump's row
+        (so a gain that has shrunk to a tenth of its pump's scale still moves at the fraction of
+        that tenth, and a zero cross-gain can leave zero).
+    max_spectral_radius : float, default 0.995
+        Closed-loop spectral radius must be below this (stability with margin; digest 2.4). With
+        the paper's fixed gains on the simulation model the radius is 0.9880.
+    horizon_steps : int, default 120
+        Steps of the input-bound simulation (2 min at Ts = 1 s: longer than the 27 s and 58 s plant
+        modes, so the first swing of the input is seen).
+    skip_saturated : bool, default True
+        Drop a pump's sample when ``u_MPC`` is within ``saturation_band`` of a bound: a clamped
+        move only says "at least this much", and fitting it as an equality drags the gains toward
+        zero (digest 2.4's collapse while the MPC sat at Qmax).
+    saturation_band : float, default 0.005
+        Width of that band as a fraction of ``u_max - u_min`` (solver tolerance headroom).
+    """
+
+    memory_s: float = 60.0
+    p0: float = 1e3
+    trace_cap: float | None = None
+    excitation_threshold: float = 1e-3
+    error_scale: float = 0.1
+    push_period_s: float = 10.0
+    min_time_s: float = 10.0
+    full_mimo: bool = False
+    own_loop: tuple[int, ...] | None = None
+    box: GainBox | None = None
+    ki_min: float | tuple[float, ...] | None = None
+    max_change_fraction: float = 0.25
+    change_floor: PidGains | None = None
+    max_spectral_radius: float = 0.995
+    horizon_steps: int = 120
+    skip_saturated: bool = True
+    saturation_band: float = 0.005
+
+    def __post_init__(self) -> None:
+        if not (
+            isinstance(self.memory_s, (int, float)) and self.memory_s > 0 and not math.isnan(self.memory_s)
+        ):
+            raise ValueError(f"memory_s must be > 0 (math.inf: no forgetting), got {self.memory_s!r}")
+        _positive(self.p0, "p0")
+        if self.trace_cap is not None and not (
+            isinstance(self.trace_cap, (int, float)) and self.trace_cap > 0
+        ):
+            raise ValueError(f"trace_cap must be None or > 0, got {self.trace_cap!r}")
+        _positive(self.excitation_threshold, "excitation_threshold", allow_zero=True)
+        _positive(self.error_scale, "error_scale")
+        _positive(self.push_period_s, "push_period_s")
+        _positive(self.min_time_s, "min_time_s", allow_zero=True)
+        _positive(self.max_change_fraction, "max_change_fraction")
+        rho = _positive(self.max_spectral_radius, "max_spectral_radius")
+        if rho > 1.0:
+            raise ValueError(f"max_spectral_radius must be in (0, 1], got {rho!r}")
+        if isinstance(self.horizon_steps, bool) or not isinstance(self.horizon_steps, int):
+            raise TypeError("horizon_steps must be an int")
+        if self.horizon_steps < 1:
+            raise ValueError(f"horizon_steps must be >= 1, got {self.horizon_steps}")
+        band = _positive(self.saturation_band, "saturation_band", allow_zero=True)
+        if band >= 0.5:
+            raise ValueError(f"saturation_band must be < 0.5 (fraction of the input range), got {band!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class Decision:
+    """Outcome of the admissibility guards for one candidate gain set.
+
+    Attributes
+    ----------
+    t_s : float
+        Model time of the proposal [s].
+    candidate : PidGains
+        The gain set judged.
+    accepted : bool
+        True when every guard passed (then it is the set to push).
+    reasons : tuple of RejectReason
+        Every failing guard, in :class:`RejectReason` order; empty when accepted.
+    detail : str
+        Human-readable detail of the first failure ("" when accepted).
+    spectral_radius : float
+        Closed-loop spectral radius with the candidate (NaN when not computed).
+    input_violation : float
+        Peak excursion of the simulated input beyond its bounds, as a fraction of the input
+        range (0 inside; NaN when not computed).
+    changed : bool
+        True when the candidate differs from the gains applied at the time.
+    """
+
+    t_s: float
+    candidate: PidGains
+    accepted: bool
+    reasons: tuple[RejectReason, ...]
+    detail: str
+    spectral_radius: float
+    input_violation: float
+    changed: bool
+
+    @property
+    def reason(self) -> RejectReason | None:
+        """First failing guard, or None when accepted."""
+        return self.reasons[0] if self.reasons else None
+
+
+@dataclass(frozen=True)
+class PumpDiagnostics:
+    """Per-pump adaptation state.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (3 * loops used,)
+        Current RLS estimate in physical units ``[Kp_ij, Ki_ij, Kd_ij, ...]``.
+    covariance_trace : float
+        Trace of the RLS covariance of the dimensionless parameters.
+    samples_used : int
+        Applied RLS updates.
+    skipped_unexcited : int
+        Samples skipped by the RLS dead zone.
+    skipped_nonfinite : int
+        Samples skipped for a non-finite target or result.
+    dropped_saturated : int
+        Samples dropped because ``u_MPC`` sat at a bound.
+    ready : bool
+        Enough applied updates (at least the number of parameters) to propose gains.
+    """
+
+    theta: FloatArray
+    covariance_trace: float
+    samples_used: int
+    skipped_unexcited: int
+    skipped_nonfinite: int
+    dropped_saturated: int
+    ready: bool
+
+
+@dataclass(frozen=True)
+class AdapterDiagnostics:
+    """Adapter-wide counters and per-pump state.
+
+    Attributes
+    ----------
+    pumps : tuple of PumpDiagnostics
+        One per pump.
+    samples_formed : int
+        Regression samples formed (three contiguous scans).
+    dropped_gap : int
+        Readings whose window spans a gap in the scan counter.
+    dropped_invalid : int
+        Readings with a non-finite SP, PV or MV.
+    duplicates : int
+        Readings repeating the previous scan number (ignored).
+    accepted_pushes : int
+        Candidates that passed every guard.
+    rejected_pushes : int
+        Candidates rejected.
+    rejected_by_reason : mapping of str to int
+        Rejections per :class:`RejectReason` value (every failing guard counted).
+    last_reject_reason : RejectReason or None
+        First failing guard of the last rejected candidate.
+    applied : PidGains
+        Gains the adapter believes the PLC applies.
+    """
+
+    pumps: tuple[PumpDiagnostics, ...]
+    samples_formed: int
+    dropped_gap: int
+    dropped_invalid: int
+    duplicates: int
+    accepted_pushes: int
+    rejected_pushes: int
+    rejected_by_reason: Mapping[str, int]
+    last_reject_reason: RejectReason | None
+    applied: PidGains
+
+
+# --------------------------------------------------------------------------- pure functions
+def _check_loop_arrays(
+    A: ArrayLike, B: ArrayLike, C: ArrayLike, Kp: ArrayLike, Ki: ArrayLike, Kd: ArrayLike, ts_s: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float]:
+    Am = _finite(_matrix(A, "A"), "A")
+    if Am.ndim != 2 or Am.shape[0] != Am.shape[1]:
+        raise ValueError(f"A must be square (n_x, n_x), got shape {Am.shape}")
+    n = Am.shape[0]
+    Bm = _finite(_matrix(B, "B"), "B")
+    if Bm.ndim != 2 or Bm.shape[0] != n:
+        raise ValueError(f"B must have shape ({n}, n_u), got {Bm.shape}")
+    Cm = _finite(_matrix(C, "C"), "C")
+    if Cm.ndim != 2 or Cm.shape[1] != n:
+        raise ValueError(f"C must have shape (n_loops, {n}), got {Cm.shape}")
+    shape = (Bm.shape[1], Cm.shape[0])
+    Kpm = _finite(_matrix(Kp, "Kp", shape), "Kp")
+    Kim = _finite(_matrix(Ki, "Ki", shape), "Ki")
+    Kdm = _finite(_matrix(Kd, "Kd", shape), "Kd")
+    return Am, Bm, Cm, Kpm, Kim, Kdm, _positive(ts_s, "ts_s")
+
+
+def closed_loop_matrix(
+    A: ArrayLike, B: ArrayLike, C: ArrayLike, Kp: ArrayLike, Ki: ArrayLike, Kd: ArrayLike, ts_s: float
+) -> FloatArray:
+    """Closed-loop matrix of a ZOH linear plant with the velocity-form MIMO PID, ``r = 0``.
+
+    State ``z(k) = [x(k), u(k-1), e(k-1), e(k-2)]`` of size ``n_x + n_u + 2 n_loops``, with
+    ``e(k) = -C x(k)``. Writing the PID as
+
+        u(k) = u(k-1) + G0 e(k) - G1 e(k-1) + G2 e(k-2)
+        G0 = Kp + Ki Ts + Kd / Ts,   G1 = Kp + 2 Kd / Ts,   G2 = Kd / Ts      (n_u, n_loops)
+
+    and ``x(k+1) = A x(k) + B u(k)`` gives ``z(k+1) = M z(k)`` with::
+
+            [ A - B G0 C   B     -B G1   B G2 ]     x(k+1)
+        M = [   -G0 C      I      -G1     G2  ]     u(k)
+            [    -C        0       0      0   ]     e(k)
+            [     0        0       I      0   ]     e(k-1)
+
+    Parameters
+    ----------
+    A : array_like, shape (n_x, n_x)
+    B : array_like, shape (n_x, n_u)
+    C : array_like, shape (n_loops, n_x)
+    Kp, Ki, Kd : array_like, shape (n_u, n_loops)
+        Gains [pump unit / e], [pump unit / (e s)], [pump unit s / e].
+    ts_s : float
+        Sample time [s], > 0.
+
+    Returns
+    -------
+    ndarray, shape (n_x + n_u + 2 n_loops, n_x + n_u + 2 n_loops)
+
+    Raises
+    ------
+    ValueError
+        On a shape mismatch, a non-finite entry or ``ts_s <= 0``.
+    """
+    Am, Bm, Cm, Kpm, Kim, Kdm, ts = _check_loop_arrays(A, B, C, Kp, Ki, Kd, ts_s)
+    n, m, nl = Am.shape[0], Bm.shape[1], Cm.shape[0]
+    G0 = Kpm + Kim * ts + Kdm / ts
+    G1 = Kpm + 2.0 * Kdm / ts
+    G2 = Kdm / ts
+    zero = np.zeros
+    return np.block(
+        [
+            [Am - Bm @ G0 @ Cm, Bm, -Bm @ G1, Bm @ G2],
+            [-G0 @ Cm, np.eye(m), -G1, G2],
+            [-Cm, zero((nl, m)), zero((nl, nl)), zero((nl, nl))],
+            [zero((nl, n)), zero((nl, m)), np.eye(nl), zero((nl, nl))],
+        ]
+    )
+
+
+def closed_loop_spectral_radius(
+    A: ArrayLike, B: ArrayLike, C: ArrayLike, Kp: ArrayLike, Ki: ArrayLike, Kd: ArrayLike, ts_s: float
+) -> float:
+    """Spectral radius ``max |eig(M)|`` of :func:`closed_loop_matrix` (stable iff < 1).
+
+    A velocity-form PID without integral action on some direction leaves an eigenvalue at
+    exactly 1 (the held input is a free constant), so ``Ki`` of full rank is needed for < 1.
+    Parameters, shapes and errors as in :func:`closed_loop_matrix`.
+    """
+    M = closed_loop_matrix(A, B, C, Kp, Ki, Kd, ts_s)
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def simulate_pid_inputs(
+    model: LoopModel,
+    gains: PidGains,
+    *,
+    x0: ArrayLike,
+    u0: ArrayLike,
+    e0: ArrayLike,
+    e_prev: ArrayLike,
+    r: ArrayLike,
+    n_steps: int,
+) -> FloatArray:
+    """Unclamped PID inputs of the linear closed loop over ``n_steps`` scans.
+
+    From scan ``k`` (state ``x(k) = x0``, applied input ``u(k) = u0``, errors ``e(k) = e0``,
+    ``e(k-1) = e_prev``, setpoints ``r`` held), for ``s = 1..n_steps``::
+
+        x(k+s) - x_op = A (x(k+s-1) - x_op) + B (u(k+s-1) - u_op)
+        e(k+s)        = r - C x(k+s)
+        u(k+s)        = u(k+s-1) + Kp De + Ki Ts e + (Kd / Ts) D2e      (not clamped)
+
+    Parameters
+    ----------
+    model : LoopModel
+    gains : PidGains
+        Finite, shape (n_u, n_loops).
+    x0 : array_like, shape (n_x,)
+        Absolute state [m]. ``u0`` shape (n_u,) absolute input; ``e0``, ``e_prev``, ``r`` shape
+        (n_loops,) [m].
+    n_steps : int
+        Horizon, >= 1.
+
+    Returns
+    -------
+    ndarray, shape (n_steps, n_u)
+        Absolute inputs ``u(k+1) .. u(k+n_steps)``.
+    """
+    if not gains.is_finite():
+        raise ValueError("gains must be finite")
+    if gains.shape != (model.n_u, model.n_loops):
+        raise ValueError(f"gains must have shape {(model.n_u, model.n_loops)}, got {gains.shape}")
+    if n_steps < 1:
+        raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+    nl = model.n_loops
+    x = _finite(_matrix(x0, "x0", (model.n_x,)), "x0") - model.x_op
+    u = _finite(_matrix(u0, "u0", (model.n_u,)), "u0") - model.u_op
+    e1 = _finite(_matrix(e0, "e0", (nl,)), "e0").copy()
+    e2 = _finite(_matrix(e_prev, "e_prev", (nl,)), "e_prev").copy()
+    r_dev = _finite(_matrix(r, "r", (nl,)), "r") - model.C @ model.x_op
+    ts = model.ts_s
+    G0 = gains.kp + gains.ki * ts + gains.kd / ts
+    G1 = gains.kp + 2.0 * gains.kd / ts
+    G2 = gains.kd / ts
+    out = np.empty((n_steps, model.n_u))
+    for s in range(n_steps):
+        x = model.A @ x + model.B @ u
+        e = r_dev - model.C @ x
+        u = u + G0 @ e - G1 @ e1 + G2 @ e2
+        e2, e1 = e1, e
+        out[s] = u
+    return out + model.u_op
+
+
+def input_bound_violation(u: ArrayLike, u_min: ArrayLike, u_max: ArrayLike) -> float:
+    """Peak excursion of ``u`` (shape (n_steps, n_u)) beyond ``[u_min, u_max]``, per input range.
+
+    ``max_{s,i} max(u_si - u_max_i, u_min_i - u_si, 0) / (u_max_i - u_min_i)``; 0 when inside.
+    """
+    ua = np.asarray(u, dtype=np.float64)
+    lo = np.asarray(u_min, dtype=np.float64)
+    hi = np.asarray(u_max, dtype=np.float64)
+    excess = np.maximum(np.maximum(ua - hi, lo - ua), 0.0) / (hi - lo)
+    return float(excess.max()) if excess.size else 0.0
+
+
+# --------------------------------------------------------------------------- the adapter
+@dataclass
+class _Reading:
+    scan: int
+    e: FloatArray  # (n_loops,)
+    sp: FloatArray  # (n_loops,)
+    mv: FloatArray  # (n_u,)
+    x: FloatArray  # (n_x,)
+
+
+@dataclass
+class _HorizonState:
+    x: FloatArray
+    u: FloatArray
+    e: FloatArray
+    e_prev: FloatArray
+    r: FloatArray
+
+
+@dataclass
+class _Counters:
+    formed: int = 0
+    gap: int = 0
+    invalid: int = 0
+    duplicates: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    by_reason: dict[str, int] = field(default_factory=dict)
+    last_reject: RejectReason | None = None
+
+
+class PidGainAdapter:
+    """MPC-taught PID gains for every pump, with admissibility guards (see the module doc).
+
+    Call :meth:`observe` once per PLC scan with the readings of that scan (SP, PV, MV and the scan
+    counter read together, and the MPC's input computed from the same state), and
+    :meth:`propose` with the model time; a returned, accepted :class:`Decision` carries the gain
+    set to push (the adapter then takes it as applied; call :meth:`set_applied` if the PLC
+    refused it or holds other gains).
+
+    Parameters
+    ----------
+    model : LoopModel
+        ZOH linear model with the loops' output matrix and input bounds.
+    fixed : PidGains
+        The PLC's fixed gains, shape (n_u, n_loops): initial estimate and applied gains. Must pass
+        the box and sign guards.
+    config : AdaptationConfig, optional
+        Defaults as documented there.
+
+    Raises
+    ------
+    ValueError
+        On inconsistent shapes, fixed gains outside the box or violating the sign guard, a box
+        that excludes the sign guard's region, or an invalid ``own_loop``.
+    """
+
+    def __init__(self, model: LoopModel, fixed: PidGains, config: AdaptationConfig | None = None) -> None:
+        if not isinstance(model, LoopModel):
+            raise TypeError("model must be a LoopModel")
+        if not isinstance(fixed, PidGains):
+            raise TypeError("fixed must be PidGains")
+        cfg = AdaptationConfig() if config is None else config
+        self._model = model
+        self._cfg = cfg
+        m, nl = model.n_u, model.n_loops
+        if fixed.shape != (m, nl):
+            raise ValueError(f"fixed gains must have shape (n_u, n_loops) = {(m, nl)}, got {fixed.shape}")
+        if not fixed.is_finite():
+            raise ValueError("fixed gains must be finite")
+
+        if cfg.own_loop is None:
+            if m > nl:
+                raise ValueError("own_loop must be given when there are more pumps than loops")
+            own = tuple(range(m))
+        else:
+            own = tuple(int(j) for j in cfg.own_loop)
+            if len(own) != m or any(not 0 <= j < nl for j in own):
+                raise ValueError(f"own_loop must give one loop index in [0, {nl}) per pump ({m})")
+        self._own = own
+        # Loops each pump's RLS uses.
+        self._loops: tuple[tuple[int, ...], ...] = tuple(
+            tuple(range(nl)) if cfg.full_mimo else (own[i],) for i in range(m)
+        )
+        self._own_mask = np.zeros((m, nl), dtype=bool)
+        self._own_mask[np.arange(m), own] = True
+        self._adapt_mask = np.zeros((m, nl), dtype=bool)
+        for i, loops in enumerate(self._loops):
+            self._adapt_mask[i, list(loops)] = True
+
+        g_fixed = fixed.stacked()  # (3, m, nl)
+        row_scale = np.abs(g_fixed).max(axis=2, keepdims=True)  # (3, m, 1)
+
+        # ki_min per pump
+        if cfg.ki_min is None:
+            ki_min = 0.1 * fixed.ki[np.arange(m), own]
+        else:
+            ki_min = np.broadcast_to(np.asarray(cfg.ki_min, dtype=np.float64), (m,)).copy()
+        if not (np.isfinite(ki_min).all() and (ki_min > 0).all()):
+            raise ValueError("ki_min must be finite and > 0 for every pump (the own-loop Ki must be > 0)")
+        self._ki_min = ki_min
+
+        # Gain box
+        if cfg.box is None:
+            bound = 10.0 * np.broadcast_to(row_scale, g_fixed.shape)
+            lo = np.where(self._adapt_mask, -bound, g_fixed)
+            hi = np.where(self._adapt_mask, bound, g_fixed)
+            box = GainBox(PidGains.from_stacked(lo), PidGains.from_stacked(hi))
+        else:
+            box = cfg.box
+            if box.lower.shape != (m, nl):
+                raise ValueError(f"box must have shape {(m, nl)}, got {box.lower.shape}")
+        self._box = box
+        if not box.contains(fixed):
+            raise ValueError("fixed gains must lie inside the gain box")
+        sign_ok, detail = self._sign_ok(fixed)
+        if not sign_ok:
+            raise ValueError(f"fixed gains violate the sign guard: {detail}")
+
+        # Rate-limit floor
+        frac = cfg.max_change_fraction
+        if cfg.change_floor is None:
+            floor = frac * 0.1 * np.broadcast_to(row_scale, g_fixed.shape)
+        else:
+            if cfg.change_floor.shape != (m, nl):
+                raise ValueError(f"change_floor must have shape {(m, nl)}")
+            floor = cfg.change_floor.stacked()
+            if not (np.isfinite(floor).all() and (floor >= 0).all()):
+                raise ValueError("change_floor must be finite and >= 0")
+        self._floor = np.array(floor, dtype=np.float64)
+
+        # Projection bounds in physical units = box intersected with the sign region.
+        lo_phys = box.lower.stacked().copy()
+        lo_phys[0][self._own_mask] = np.maximum(lo_phys[0][self._own_mask], 0.0)
+        own_ki_lo = lo_phys[1][np.arange(m), own]
+        lo_phys[1][np.arange(m), own] = np.maximum(own_ki_lo, ki_min)
+        hi_phys = box.upper.stacked()
+        if (lo_phys > hi_phys).any():
+            raise ValueError("the gain box leaves no room for the sign guard (Kp >= 0, Ki >= ki_min)")
+
+        # One RLS per pump on dimensionless parameters.
+        ts = model.ts_s
+        lam = ExpForgettingRls.forgetting_from_memory(ts, cfg.memory_s)
+        E = cfg.error_scale
+        self._scale: list[FloatArray] = []
+        self._rls: list[ExpForgettingRls] = []
+        for i in range(m):
+            U = float(model.u_max[i] - model.u_min[i])
+            per_loop = np.array([E / U, ts * E / U, E / (ts * U)])
+            s = np.tile(per_loop, len(self._loops[i]))
+            self._scale.append(s)
+            theta0 = self._pack(g_fixed, i)
+            self._rls.append(
+                ExpForgettingRls(
+                    s.size,
+                    forgetting=lam,
+                    p0=cfg.p0,
+                    theta0=theta0 * s,
+                    trace_cap=cfg.trace_cap,
+                    excitation_threshold=cfg.excitation_threshold,
+                    lower=self._pack(lo_phys, i) * s,
+                    upper=self._pack(hi_phys, i) * s,
+                )
+            )
+
+        self._fixed = fixed
+        self._applied = fixed
+        self._history: list[_Reading] = []
+        self._after_gap = False
+        self._last_scan: int | None = None
+        self._horizon: _HorizonState | None = None
+        self._t_start: float | None = None
+        self._t_last_proposal: float | None = None
+        self._counters = _Counters()
+        self._saturated = [0] * m
+        self._last_decision: Decision | None = None
+
+    # ------------------------------------------------------------------ packing
+    def _pack(self, g: FloatArray, i: int) -> FloatArray:
+        """Pump i's parameters ``[Kp_ij, Ki_ij, Kd_ij for j in its loops]`` from (3, m, nl)."""
+        return np.concatenate([g[:, i, j] for j in self._loops[i]])
+
+    def _unpack_into(self, g: FloatArray, i: int, theta: FloatArray) -> None:
+        for k, j in enumerate(self._loops[i]):
+            g[:, i, j] = theta[3 * k : 3 * k + 3]
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def model(self) -> LoopModel:
+        """The linear model the guards use."""
+        return self._model
+
+    @property
+    def config(self) -> AdaptationConfig:
+        """The settings."""
+        return self._cfg
+
+    @property
+    def applied(self) -> PidGains:
+        """Gains the adapter believes the PLC applies (rate-limit reference)."""
+        return self._applied
+
+    @property
+    def fixed(self) -> PidGains:
+        """The PLC's fixed gains."""
+        return self._fixed
+
+    @property
+    def box(self) -> GainBox:
+        """The gain box in force (the configured one or the default)."""
+        return self._box
+
+    @property
+    def ki_min(self) -> FloatArray:
+        """Own-loop Ki lower bound per pump, shape (n_u,)."""
+        return self._ki_min.copy()
+
+    @property
+    def last_decision(self) -> Decision | None:
+        """The last decision taken by :meth:`propose` or :meth:`submit`."""
+        return self._last_decision
+
+    def estimate(self) -> PidGains:
+        """Current RLS estimates as gains (entries a pump does not fit: the applied values)."""
+        g = self._applied.stacked().copy()
+        for i, rls in enumerate(self._rls):
+            self._unpack_into(g, i, rls.theta / self._scale[i])
+        return PidGains.from_stacked(g)
+
+    def diagnostics(self) -> AdapterDiagnostics:
+        """Counters and per-pump RLS state (for the ``Supervisor.RLS.*`` nodes)."""
+        pumps = tuple(
+            PumpDiagnostics(
+                theta=rls.theta / self._scale[i],
+                covariance_trace=rls.trace,
+                samples_used=rls.n_updates,
+                skipped_unexcited=rls.n_skipped_unexcited,
+                skipped_nonfinite=rls.n_skipped_nonfinite,
+                dropped_saturated=self._saturated[i],
+                ready=rls.n_updates >= rls.n_params,
+            )
+            for i, rls in enumerate(self._rls)
+        )
+        c = self._counters
+        return AdapterDiagnostics(
+            pumps=pumps,
+            samples_formed=c.formed,
+            dropped_gap=c.gap,
+            dropped_invalid=c.invalid,
+            duplicates=c.duplicates,
+            accepted_pushes=c.accepted,
+            rejected_pushes=c.rejected,
+            rejected_by_reason=dict(c.by_reason),
+            last_reject_reason=c.last_reject,
+            applied=self._applied,
+        )
+
+    # ------------------------------------------------------------------ data
+    def observe(
+        self,
+        *,
+        scan: int,
+        t_s: float,
+        sp: ArrayLike,
+        pv: ArrayLike,
+        mv: ArrayLike,
+        u_mpc: ArrayLike,
+        x: ArrayLike | None = None,
+    ) -> SampleStatus:
+        """Take one PLC scan's readings and, when three contiguous scans exist, learn from them.
+
+        Parameters
+        ----------
+        scan : int
+            PLC scan counter of the scan SP, PV and MV were read from (one Read).
+        t_s : float
+            Model time [s].
+        sp, pv : array_like, shape (n_loops,)
+            Setpoints and PVs exactly as the PLC's PID used them; ``e = sp - pv``.
+        mv : array_like, shape (n_u,)
+            Applied (clamped) pump outputs of that scan.
+        u_mpc : array_like, shape (n_u,)
+            MPC input for this scan, computed from the same measured state. A non-finite entry
+            (MPC failure) skips that pump's update (counted by its RLS).
+        x : array_like, shape (n_x,), optional
+            Full measured state (every level) for the input-bound simulation; by default the
+            unmeasured states are set to their operating values:
+            ``x = x_op + pinv(C) (pv - C x_op)``.
+
+        Returns
+        -------
+        SampleStatus
+        """
+        if isinstance(scan, bool) or not isinstance(scan, (int, np.integer)):
+            raise TypeError(f"scan must be an int, got {type(scan).__name__}")
+        scan = int(scan)
+        t = float(t_s)
+        if not math.isfinite(t):
+            raise ValueError("t_s must be finite")
+        model = self._model
+        nl, m = model.n_loops, model.n_u
+        sp_v = _matrix(sp, "sp", (nl,))
+        pv_v = _matrix(pv, "pv", (nl,))
+        mv_v = _matrix(mv, "mv", (m,))
+        um_v = _matrix(u_mpc, "u_mpc", (m,))
+        if self._t_start is None:
+            self._t_start = t
+
+        if self._last_scan is not None and scan == self._last_scan:
+            self._counters.duplicates += 1
+            return SampleStatus.DUPLICATE
+        self._last_scan = scan
+
+        if x is None:
+            x_v = model.x_op + np.linalg.pinv(model.C) @ (pv_v - model.C @ model.x_op)
+        else:
+            x_v = _matrix(x, "x", (model.n_x,))
+        if not (np.isfinite(sp_v).all() and np.isfinite(pv_v).all() and np.isfinite(mv_v).all()):
+            self._history.clear()
+            self._after_gap = True
+            self._counters.invalid += 1
+            return SampleStatus.INVALID
+
+        reading = _Reading(scan=scan, e=sp_v - pv_v, sp=sp_v, mv=mv_v, x=x_v)
+        if self._history and scan != self._history[-1].scan + 1:
+            self._history.clear()
+            self._after_gap = True
+        self._history.append(reading)
+        if len(self._history) > 3:
+            del self._history[0]
+        if len(self._history) < 3:
+            # The window [k-2, k] is incomplete: at the very start that is warm-up; after a gap in
+            # the scan counter (or an invalid reading) the window spans it and the sample is dropped.
+            if self._after_gap:
+                self._counters.gap += 1
+                return SampleStatus.GAP
+            return SampleStatus.WARMUP
+        self._after_gap = False
+
+        r0, r1, r2 = self._history[-1], self._history[-2], self._history[-3]
+        self._counters.formed += 1
+        if np.isfinite(x_v).all():
+            self._horizon = _HorizonState(x=x_v, u=r0.mv, e=r0.e, e_prev=r1.e, r=r0.sp)
+        ts = model.ts_s
+        de = r0.e - r1.e
+        d2e = r0.e - 2.0 * r1.e + r2.e
+        band = self._cfg.saturation_band * (model.u_max - model.u_min)
+        for i, rls in enumerate(self._rls):
+            loops = list(self._loops[i])
+            psi = np.column_stack([de[loops], ts * r0.e[loops], d2e[loops] / ts]).ravel()
+            y = float(um_v[i] - r1.mv[i])
+            if (
+                self._cfg.skip_saturated
+                and math.isfinite(um_v[i])
+                and (um_v[i] <= model.u_min[i] + band[i] or um_v[i] >= model.u_max[i] - band[i])
+            ):
+                self._saturated[i] += 1
+                continue
+            U = float(model.u_max[i] - model.u_min[i])
+            rls.update(psi / (U * self._scale[i]), y / U)
+        return SampleStatus.FORMED
+
+    # ------------------------------------------------------------------ guards
+    def _sign_ok(self, gains: PidGains) -> tuple[bool, str]:
+        m = self._model.n_u
+        idx = (np.arange(m), np.asarray(self._own))
+        kp_own = gains.kp[idx]
+        ki_own = gains.ki[idx]
+        for i in range(m):
+            if not kp_own[i] >= 0.0:
+                return False, f"Kp[{i},{self._own[i]}] = {kp_own[i]:.6g} < 0"
+            if not ki_own[i] >= self._ki_min[i]:
+                return False, f"Ki[{i},{self._own[i]}] = {ki_own[i]:.6g} < Ki_min = {self._ki_min[i]:.6g}"
+        return True, ""
+
+    def _step_limit(self, applied: FloatArray) -> FloatArray:
+        return np.maximum(self._cfg.max_change_fraction * np.abs(applied), self._floor)
+
+    def evaluate(self, candidate: PidGains, t_s: float = math.nan) -> Decision:
+        """Judge ``candidate`` against every guard, without side effects.
+
+        Guards (all evaluated; ``reasons`` lists every failure in this order):
+
+        * ``non_finite``: every gain finite (if not, nothing else is evaluated);
+        * ``outside_box``: ``box.lower <= g <= box.upper`` element-wise;
+        * ``sign``: own-loop ``Kp_i >= 0`` and ``Ki_i >= Ki_min,i > 0``;
+        * ``rate_limit``: ``|g - g_applied| <= max(max_change_fraction |g_applied|, floor)``;
+        * ``unstable``: ``rho(M(candidate)) < max_spectral_radius`` (:func:`closed_loop_matrix`);
+        * ``input_bounds``: :func:`simulate_pid_inputs` from the current state (last formed
+          sample: measured state, applied MV, the PID's last two errors, setpoints held) over
+          ``horizon_steps``; the peak excursion beyond ``[u_min, u_max]`` (fraction of range)
+          must be 0, or, when the applied gains' own simulation already leaves the bounds (a large
+          setpoint error that saturates any sensible gains), no larger than theirs. Skipped
+          (``input_violation`` NaN) before the first formed sample.
+
+        Parameters
+        ----------
+        candidate : PidGains
+            Shape (n_u, n_loops).
+        t_s : float, optional
+            Model time recorded in the decision [s].
+        """
+        model = self._model
+        if candidate.shape != (model.n_u, model.n_loops):
+            raise ValueError(f"candidate must have shape {(model.n_u, model.n_loops)}, got {candidate.shape}")
+        changed = not candidate.allclose(self._applied, rtol=0.0)
+        if not candidate.is_finite():
+            return Decision(
+                t_s,
+                candidate,
+                False,
+                (RejectReason.NON_FINITE,),
+                "a gain is not finite",
+                math.nan,
+                math.nan,
+                changed,
+            )
+        reasons: list[RejectReason] = []
+        details: list[str] = []
+        g = candidate.stacked()
+        lo, hi = self._box.lower.stacked(), self._box.upper.stacked()
+        outside = (g < lo) | (g > hi)
+        if outside.any():
+            t, i, j = (int(v) for v in np.argwhere(outside)[0])
+            reasons.append(RejectReason.OUTSIDE_BOX)
+            details.append(
+                f"{_GAIN_NAMES[t]}[{i},{j}] = {g[t, i, j]:.6g} outside [{lo[t, i, j]:.6g}, {hi[t, i, j]:.6g}]"
+            )
+        sign_ok, sign_detail = self._sign_ok(candidate)
+        if not sign_ok:
+            reasons.append(RejectReason.SIGN)
+            details.append(sign_detail)
+        a = self._applied.stacked()
+        limit = self._step_limit(a)
+        too_fast = np.abs(g - a) > limit * (1.0 + _REL_TOL)
+        if too_fast.any():
+            t, i, j = (int(v) for v in np.argwhere(too_fast)[0])
+            reasons.append(RejectReason.RATE_LIMIT)
+            step = g[t, i, j] - a[t, i, j]
+            details.append(f"{_GAIN_NAMES[t]}[{i},{j}] changes by {step:.6g}, limit {limit[t, i, j]:.6g}")
+        rho = closed_loop_spectral_radius(
+            model.A, model.B, model.C, candidate.kp, candidate.ki, candidate.kd, model.ts_s
+        )
+        if not rho < self._cfg.max_spectral_radius:
+            reasons.append(RejectReason.UNSTABLE)
+            details.append(f"spectral radius {rho:.6f} >= {self._cfg.max_spectral_radius}")
+        violation = math.nan
+        hs = self._horizon
+        if hs is not None:
+            kwargs = {"x0": hs.x, "u0": hs.u, "e0": hs.e, "e_prev": hs.e_prev, "r": hs.r}
+            n = self._cfg.horizon_steps
+            violation = input_bound_violation(
+                simulate_pid_inputs(model, candidate, n_steps=n, **kwargs), model.u_min, model.u_max
+            )
+            if violation > 0.0:
+                reference = input_bound_violation(
+                    simulate_pid_inputs(model, self._applied, n_steps=n, **kwargs), model.u_min, model.u_max
+                )
+                if violation > reference * (1.0 + _REL_TOL):
+                    reasons.append(RejectReason.INPUT_BOUNDS)
+                    details.append(
+                        f"simulated input leaves its bounds by {violation:.4g} of its range "
+                        f"(applied gains: {reference:.4g})"
+                    )
+        return Decision(
+            t_s,
+            candidate,
+            not reasons,
+            tuple(reasons),
+            details[0] if details else "",
+            rho,
+            violation,
+            changed,
+        )
+
+    def submit(self, candidate: PidGains, t_s: float = math.nan) -> Decision:
+        """Judge ``candidate`` (:meth:`evaluate`), count the outcome, and take it as applied if accepted.
+
+        A rejected candidate leaves the applied gains untouched.
+        """
+        decision = self.evaluate(candidate, t_s)
+        c = self._counters
+        if decision.accepted:
+            c.accepted += 1
+            self._applied = decision.candidate
+        else:
+            c.rejected += 1
+            for reason in decision.reasons:
+                c.by_reason[reason.value] = c.by_reason.get(reason.value, 0) + 1
+            c.last_reject = decision.reason
+        self._last_decision = decision
+        return decision
+
+    def set_applied(self, gains: PidGains) -> None:
+        """Record the gains the PLC really applies (after a refused push, or read back)."""
+        if gains.shape != (self._model.n_u, self._model.n_loops):
+            raise ValueError(f"gains must have shape {(self._model.n_u, self._model.n_loops)}")
+        if not gains.is_finite():
+            raise ValueError("gains must be finite")
+        self._applied = gains
+
+    def propose(self, t_s: float) -> Decision | None:
+        """Propose, judge and count a candidate gain set when one is due.
+
+        A candidate is due when ``t_s`` is at least ``min_time_s`` after the first reading, at least
+        one pump's RLS has applied as many updates as it has parameters, and ``push_period_s`` has
+        passed since the previous proposal. Each ready pump moves from its applied gains toward its
+        RLS estimate by at most the rate limit per gain; other pumps keep their applied gains.
+
+        Parameters
+        ----------
+        t_s : float
+            Model time [s].
+
+        Returns
+        -------
+        Decision or None
+            None when no candidate is due; otherwise the decision (accepted: push
+            ``decision.candidate``).
+        """
+        t = float(t_s)
+        if not math.isfinite(t):
+            raise ValueError("t_s must be finite")
+        if self._t_start is None or t - self._t_start < self._cfg.min_time_s - 1e-9:
+            return None
+        ready = [rls.n_updates >= rls.n_params for rls in self._rls]
+        if not any(ready):
+            return None
+        period = self._cfg.push_period_s
+        if self._t_last_proposal is not None and t - self._t_last_proposal < period - 1e-9 * max(1.0, period):
+            return None
+        a = self._applied.stacked()
+        target = a.copy()
+        for i, rls in enumerate(self._rls):
+            if ready[i]:
+                self._unpack_into(target, i, rls.theta / self._scale[i])
+        limit = self._step_limit(a)
+        g = a + np.clip(target - a, -limit, limit)
+        self._t_last_proposal = t
+        return self.submit(PidGains.from_stacked(g), t)
