@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 CONFIG ?= configs/three_tank_energies_sim.yaml
 PYTEST_ARGS ?=
 
-.PHONY: venv run test lint typecheck unit bench docs clean
+.PHONY: venv tools run test lint typecheck unit bench docs clean
 
 venv: $(STAMP)
 
@@ -27,7 +27,21 @@ lint: venv
 typecheck: venv
 	$(BIN)/mypy
 
-test: lint typecheck
+# tests/test_docker.py validates docker-compose.yml with `docker-compose config` (Debian's
+# package; no Docker engine needed, so --no-install-recommends keeps docker.io out). Installed
+# when missing and running as root with apt-get; otherwise say so, and that test skips.
+tools:
+	@if command -v docker-compose >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  echo "make tools: installing docker-compose (Debian package) for tests/test_docker.py"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
+	    apt-get install -y -qq --no-install-recommends docker-compose >/dev/null; \
+	else \
+	  echo "make tools: docker-compose is missing and cannot be installed (needs root and apt-get);" \
+	       "tests/test_docker.py will skip its 'docker-compose config' check"; \
+	fi
+
+test: tools lint typecheck
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 
 bench: venv
