@@ -476,17 +476,27 @@ class MpcSpec(Model):
 
 
 class AdaptationSpec(Model):
-    """MPC-based PID adaptation (digest 2.4)."""
+    """MPC-based PID adaptation (digest 2.4); see docs/adaptation.md for every guard."""
 
     push_period_s: PositiveFloat = Field(10.0, description="Model seconds between gain pushes.")
-    start_after_s: NonNegFloat = Field(10.0, description="No push before this much adaptation time [s].")
-    memory_s: PositiveFloat = Field(100.0, description="RLS memory Tmem; lambda = exp(-Ts/Tmem) [s].")
-    trace_cap: PositiveFloat = Field(1e4, description="Cap on the trace of the RLS covariance.")
-    excitation_threshold: NonNegFloat = Field(1e-6, description="Dead zone of the RLS on regressor size.")
-    max_change_fraction: PositiveFloat = Field(0.5, description="Largest relative gain change per push.")
-    spectral_radius_max: PositiveFloat = Field(0.995, description="Closed-loop spectral radius limit.")
-    ki_min: NonNegFloat = Field(1e-9, description="Smallest admissible Ki.")
-    mimo: bool = Field(False, description="Fit full MIMO gain matrices instead of diagonal ones.")
+    start_after_s: NonNegFloat = Field(10.0, description="No push before this much model time [s].")
+    memory_s: PositiveFloat = Field(60.0, description="RLS memory Tmem; lambda = exp(-Ts/Tmem) [s].")
+    trace_cap: PositiveFloat | None = Field(
+        None, description="Cap on the trace of the (dimensionless) RLS covariance; null = n_params * p0."
+    )
+    excitation_threshold: NonNegFloat = Field(
+        1e-3, description="RLS dead zone: smallest change of the dimensionless regressor that adapts."
+    )
+    error_scale_m: PositiveFloat = Field(
+        0.1, description="Typical error size [m] that makes the RLS dimensionless (scaled to cm loops)."
+    )
+    max_change_fraction: PositiveFloat = Field(0.25, description="Largest relative gain change per push.")
+    spectral_radius_max: PositiveFloat = Field(
+        0.995, lt=1.0, description="Closed-loop spectral radius limit of the linear model with the PID."
+    )
+    ki_min: PositiveFloat | None = Field(
+        None, description="Smallest admissible own-loop Ki; null = 0.1 x the fixed Ki."
+    )
 
 
 class SupervisorConfig(Model):
@@ -639,7 +649,7 @@ def format_validation_error(path: str | Path, err: ValidationError) -> str:
     return f"{path}: {loc or '(top level)'}: {msg}{suffix}"
 
 
-def _read_yaml(path: Path) -> Any:
+def read_yaml(path: Path) -> Any:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
@@ -682,7 +692,7 @@ def load_site(path: str | Path, *, env: Mapping[str, str] | None = None) -> Site
         ``os.environ``.
     """
     p = Path(path)
-    site = site_from_mapping(_read_yaml(p), p)
+    site = site_from_mapping(read_yaml(p), p)
     if env:
         apply_env_overrides(site, env, source=str(p))
     return site
