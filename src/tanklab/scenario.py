@@ -283,8 +283,8 @@ def check_against_site(scenario: Scenario, site: SiteConfig) -> None:
         if name not in loops:
             raise ConfigError(f"{where}: initial: unknown loop {name}")
     for i, ev in enumerate(scenario.events):
-        name = getattr(ev, "loop", None) or getattr(ev, "tank", None) or getattr(ev, "valve", None)
-        name = name or getattr(ev, "transmitter", None)
-        known = loops | tanks | valves | lts
-        if name is not None and name not in known:
-            raise ConfigError(f"{where}: events[{i}]: unknown {ev.kind} target {name}")
+        target: str | None = None
+        for attr in ("loop", "tank", "valve", "transmitter"):
+            target = target or getattr(ev, attr, None)
+        if target is not None and target not in loops | tanks | valves | lts:
+            raise ConfigError(f"{where}: events[{i}]: unknown {ev.kind} target {target}")
