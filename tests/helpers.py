@@ -37,3 +37,61 @@ async def wait_until(
         if time.monotonic() >= end:
             raise AssertionError(f"timed out after {deadline_s} s waiting for {what}")
         await asyncio.sleep(poll_s)
+
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+class TierProcess:
+    """A tier started as ``python -m tankctl ...`` in its own process group.
+
+    ``start`` waits (bounded) for the banner line the tier prints once it serves; ``stop``
+    sends SIGTERM and waits, ``kill`` sends SIGKILL. Only processes this object started are
+    ever signalled.
+    """
+
+    def __init__(self, *args: str, env: dict[str, str] | None = None) -> None:
+        self.args = args
+        self.env = env
+        self.proc: asyncio.subprocess.Process | None = None
+        self.banner = ""
+
+    async def start(self, deadline_s: float = 30.0) -> TierProcess:
+        import os
+        import sys
+
+        env = dict(os.environ, **(self.env or {}))
+        self.proc = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "tankctl",
+            *self.args,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.DEVNULL,
+            env=env,
+            cwd=ROOT,
+            start_new_session=True,
+        )
+        assert self.proc.stdout is not None
+        line = await asyncio.wait_for(self.proc.stdout.readline(), deadline_s)
+        self.banner = line.decode().strip()
+        if not self.banner:
+            raise AssertionError(f"tankctl {' '.join(self.args)} exited before serving")
+        return self
+
+    async def stop(self, deadline_s: float = 20.0) -> int | None:
+        import signal
+
+        if self.proc is None or self.proc.returncode is not None:
+            return self.proc.returncode if self.proc else None
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            return await asyncio.wait_for(self.proc.wait(), deadline_s)
+        except TimeoutError:
+            self.proc.kill()
+            return await self.proc.wait()
+
+    async def kill(self) -> None:
+        if self.proc is not None and self.proc.returncode is None:
+            self.proc.kill()
+            await self.proc.wait()

@@ -14,11 +14,24 @@ SRC = ROOT / "src"
 
 # Pure cores: take values, return values; never a clock, a socket, a sleep, asyncio or asyncua.
 PURE_MODULES = [
-    "tanklab/enums.py", "tanklab/errors.py", "tanklab/tags.py", "tanklab/rls.py",
-    "plant_sim/models.py", "plant_sim/integrate.py", "plant_sim/linearize.py", "plant_sim/sensors.py",
+    "tanklab/enums.py",
+    "tanklab/errors.py",
+    "tanklab/tags.py",
+    "tanklab/rls.py",
+    "plant_sim/models.py",
+    "plant_sim/integrate.py",
+    "plant_sim/linearize.py",
+    "plant_sim/sensors.py",
     "plant_sim/plant.py",
-    "plc_emulator/pid.py", "plc_emulator/nlpi.py", "plc_emulator/mrac.py", "plc_emulator/tuning.py",
-    "supervisor/mpc.py", "supervisor/estimator.py", "supervisor/adaptation.py",
+    "plc_emulator/pid.py",
+    "plc_emulator/nlpi.py",
+    "plc_emulator/mrac.py",
+    "plc_emulator/tuning.py",
+    "plc_emulator/program.py",
+    "supervisor/mpc.py",
+    "supervisor/estimator.py",
+    "supervisor/adaptation.py",
+    "supervisor/cycle.py",
 ]
 FORBIDDEN = {"asyncua", "asyncio", "time", "socket", "threading", "logging", "datetime", "random", "os"}
 

@@ -1,6 +1,6 @@
 """The plant's real-time loop: advance the simulator on the wall clock, publish, checkpoint.
 
-Every ``tick_s`` of wall time (on deadlines: next = previous + tick), the simulator advances by
+Every ``tick_s`` of wall time (0.05 s) (on deadlines: next = previous + tick), the simulator advances by
 ``tick_s * speed`` seconds of model time and the server publishes the new state. In lock-step
 the loop does not advance the model: ``Plant.Sim.Advance`` does, driven by the PLC.
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from plant_sim.plant import PlantSimulator
 from plant_sim.server import PlantServer
-from tanklab.clock import Clock, Deadlines, MonotonicClock
+from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
 
 log = logging.getLogger(__name__)
@@ -58,7 +58,7 @@ async def run_plant(
     lockstep: bool = False,
     stop: asyncio.Event,
     clock: Clock | None = None,
-    tick_s: float = 0.1,
+    tick_s: float = 0.05,
     checkpoint_s: float = 5.0,
     state_file: Path | None = None,
     ready: asyncio.Event | None = None,
@@ -83,11 +83,7 @@ async def run_plant(
     last_checkpoint = clock.now()
     try:
         while not stop.is_set():
-            sleeper = asyncio.ensure_future(clock.sleep_until(deadlines.next_deadline))
-            stopper = asyncio.ensure_future(stop.wait())
-            await asyncio.wait({sleeper, stopper}, return_when=asyncio.FIRST_COMPLETED)
-            for fut in (sleeper, stopper):
-                fut.cancel()
+            await sleep_or_stop(clock, deadlines.next_deadline, stop)
             if stop.is_set():
                 break
             deadlines.started(clock.now())

@@ -106,3 +106,12 @@ class Deadlines:
             self.overruns += 1
             self.next_deadline += missed * self.period_s
         return self.next_deadline
+
+
+async def sleep_or_stop(clock: Clock, deadline: float, stop: asyncio.Event) -> None:
+    """Wait until ``deadline`` on ``clock`` or until ``stop`` is set, whichever comes first."""
+    sleeper = asyncio.ensure_future(clock.sleep_until(deadline))
+    stopper = asyncio.ensure_future(stop.wait())
+    await asyncio.wait({sleeper, stopper}, return_when=asyncio.FIRST_COMPLETED)
+    for fut in (sleeper, stopper):
+        fut.cancel()

@@ -23,6 +23,8 @@ Client side
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 import math
 from collections.abc import Awaitable, Callable, Iterable, Sequence
@@ -34,6 +36,7 @@ from asyncua import Client, Node, Server, ua
 from asyncua.crypto.permission_rules import User
 from asyncua.server.address_space import AttributeService
 
+from tanklab.errors import LinkError
 from tanklab.tags import NAMESPACE_URI, DataType, Tag
 
 log = logging.getLogger(__name__)
@@ -373,3 +376,128 @@ async def write_value(node: Node, tag: Tag, value: Any) -> ua.StatusCode:
     params.NodesToWrite = [wv]
     result = await node.session.write(params)
     return result[0]
+
+
+class Link:
+    """An OPC UA client link to the tier below that never crashes its owner.
+
+    Every request is bounded by ``timeout_s``; any failure marks the link unhealthy, drops the
+    connection and raises :class:`~tanklab.errors.LinkError` once. :meth:`ensure` reconnects
+    with exponential backoff (0.5 s doubling to ``max_backoff_s`` of wall time) and resolves the
+    nodes again, so the owner calls it every cycle and carries on with its last good values
+    while the tier below is away.
+    """
+
+    def __init__(
+        self, url: str, tags: dict[str, Tag], *, name: str, timeout_s: float = 2.0, max_backoff_s: float = 5.0
+    ) -> None:
+        self.url = url
+        self.tags = tags
+        self.name = name
+        self.timeout_s = timeout_s
+        self.max_backoff_s = max_backoff_s
+        self.client: Client | None = None
+        self.nodes: dict[str, Node] = {}
+        self.idx: int | None = None
+        self.healthy = False
+        self.failures = 0
+        self.connects = 0
+        self._backoff_s = 0.5
+        self._next_attempt = 0.0
+
+    async def ensure(self) -> bool:
+        """Connect if not connected and an attempt is due; return whether the link is up."""
+        if self.healthy:
+            return True
+        loop = asyncio.get_running_loop()
+        if loop.time() < self._next_attempt:
+            return False
+        client = Client(self.url, timeout=self.timeout_s)
+        try:
+            await asyncio.wait_for(client.connect(), self.timeout_s)
+            self.idx = await asyncio.wait_for(namespace_index(client), self.timeout_s)
+        except Exception as e:
+            self._next_attempt = loop.time() + self._backoff_s
+            self._backoff_s = min(2 * self._backoff_s, self.max_backoff_s)
+            log.debug("%s link: connect to %s failed: %s", self.name, self.url, e)
+            await _quiet_disconnect(client)
+            return False
+        self.client = client
+        self.nodes = {p: client.get_node(ua.NodeId(p, self.idx)) for p in self.tags}
+        self.healthy = True
+        self.connects += 1
+        self._backoff_s = 0.5
+        log.info("%s link: connected to %s", self.name, self.url)
+        return True
+
+    async def _fail(self, what: str, e: BaseException) -> LinkError:
+        self.failures += 1
+        if self.healthy:
+            log.warning("%s link: %s failed (%s); reconnecting", self.name, what, e or type(e).__name__)
+        self.healthy = False
+        client, self.client = self.client, None
+        if client is not None:
+            await _quiet_disconnect(client)
+        loop = asyncio.get_running_loop()
+        self._next_attempt = loop.time() + self._backoff_s
+        return LinkError(f"{self.name} link to {self.url}: {what} failed: {e or type(e).__name__}")
+
+    async def read(self, paths: Sequence[str]) -> list[ua.DataValue]:
+        """Read the values of ``paths`` in one Read; DataValues with their status codes."""
+        if not self.healthy or self.client is None:
+            raise LinkError(f"{self.name} link to {self.url} is down")
+        try:
+            return list(
+                await asyncio.wait_for(
+                    self.client.read_attributes([self.nodes[p] for p in paths]), self.timeout_s
+                )
+            )
+        except Exception as e:
+            raise await self._fail("read", e) from e
+
+    async def write(self, values: dict[str, Any]) -> list[ua.StatusCode]:
+        """Write many values in one Write; returns each item's status (no exception for Bad)."""
+        if not self.healthy or self.client is None:
+            raise LinkError(f"{self.name} link to {self.url} is down")
+        paths = list(values)
+        dvs = [ua.DataValue(variant(self.tags[p], values[p])) for p in paths]
+        try:
+            return list(
+                await asyncio.wait_for(
+                    self.client.uaclient.write_attributes(
+                        [self.nodes[p].nodeid for p in paths], dvs, ua.AttributeIds.Value
+                    ),
+                    self.timeout_s,
+                )
+            )
+        except Exception as e:
+            raise await self._fail("write", e) from e
+
+    async def call(self, method_path: str, *args: ua.Variant) -> list[Any]:
+        """Call a method (its object is the path's parent); raises LinkError, or UaStatusCodeError
+        when the server answers the call with a Bad status (the link stays up)."""
+        if not self.healthy or self.client is None or self.idx is None:
+            raise LinkError(f"{self.name} link to {self.url} is down")
+        parent = self.client.get_node(ua.NodeId(method_path.rsplit(".", 1)[0], self.idx))
+        try:
+            result = await asyncio.wait_for(
+                parent.call_method(ua.NodeId(method_path, self.idx), *args), self.timeout_s
+            )
+        except ua.UaStatusCodeError:
+            raise
+        except Exception as e:
+            raise await self._fail(f"call {method_path}", e) from e
+        return result if isinstance(result, list) else [result]
+
+    async def close(self) -> None:
+        """Disconnect (idempotent)."""
+        self.healthy = False
+        client, self.client = self.client, None
+        if client is not None:
+            await _quiet_disconnect(client)
+
+
+async def _quiet_disconnect(client: Client) -> None:
+    # The peer may already be gone: nothing to report about a failed goodbye.
+    with contextlib.suppress(Exception):
+        await asyncio.wait_for(client.disconnect(), 1.0)

@@ -1,0 +1,727 @@
+"""The soft PLC's program: one scan, in PLC order, as a pure function of its inputs.
+
+A scan (period Ts of model time) does, in order:
+
+1. **Watchdog**: the supervisor's heartbeat must change within ``timeout_s`` of model time
+   (counted from the scan that saw the last change; the first timeout after start is a grace
+   period counted from the first scan). On timeout ``Alive`` goes false; loops on SUPERVISOR
+   gains go to FALLBACK gains (the fixed ones or the last accepted ones), loops in REMOTE shed
+   to AUTO at their current setpoint, both bumpless (the velocity form continues from the
+   applied MV; NL-PI and MRAC re-initialise from it), and gains staged since the last scan are
+   dropped. Supervisor gains are accepted again only after the heartbeat has been good for
+   ``good_scans_to_accept`` scans.
+2. **Boundary**: gains staged by ``SetGains`` since the last scan take effect now, all three at
+   once, so no scan runs with half-applied gains.
+3. **Read inputs**: the level transmitters' readings and their quality. A reading is bad when
+   the field link failed (``io_healthy`` false), the link flagged it, it is not finite, outside
+   the transmitter range, or frozen (``pv_frozen_scans`` identical readings in a row, when
+   enabled).
+4. **Execute blocks**: the PID loops as MIMO velocity-form blocks (one per group of loops
+   coupled by ``cross_gains``), the NL-PI and MRAC loops as single-loop blocks. REMOTE on a
+   non-PID block applies ``RemoteMV`` through the block's MANUAL path, so every block is
+   bumpless in every direction. A loop whose PV has been bad for ``pv_bad_scans`` scans applies
+   its substitute output in AUTO and REMOTE (``hold`` or ``value``, at the rate limit).
+5. **Interlocks**: a delivered, finite reading at or above high-high (over-range and frozen
+   readings included: fail-safe) trips its tank's pumps to their lowest command in every mode,
+   with any gains, supervisor alive or not. The trip latches until the level is below the reset
+   level and an operator resets it. The blocks are told where the actuator really is
+   (``track``), and a loop in MANUAL or REMOTE holds the forced value, so the loop resumes
+   bumplessly after the reset and no pump restarts by itself at an old manual value.
+6. **Write outputs**: one command per pump, in the pump's own unit, always inside the pump's
+   command range.
+7. **Publish**: every PLC node's value the program owns, keyed by tag path (``values()``).
+
+Errors are SP - PV in the loop's ``error_unit``: the rig's gains assume centimetres, so SP and PV
+are scaled by 100 before the PID block sees them (the PID's setpoint limits and ramp scale with
+them).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from plc_emulator.mrac import Mrac, MracConfig
+from plc_emulator.nlpi import AdaptiveNlPi, AdaptiveNlPiConfig, NlPi, NlPiConfig
+from plc_emulator.pid import Pid, PidConfig, PidGains
+from plc_emulator.tuning import nlpi_gains
+from tanklab.config import LoopSpec, PidGainsSpec, SiteConfig
+from tanklab.enums import GainSource, LoopMode
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+ERROR_SCALE = {"m": 1.0, "cm": 100.0}
+"""Factor from metres to the loop's error unit."""
+
+RUNTIME_OWNED_TAGS = (
+    "PLC.Status.ScanPeriod",
+    "PLC.Status.LastScanDuration",
+    "PLC.Status.Overruns",
+    "PLC.Supervisor.Heartbeat",
+    "PLC.Supervisor.Timeout",
+)
+"""PLC variables the runtime publishes, not :meth:`PlcProgram.values` (plus ``PLC.LIC*.Block``)."""
+
+_TIME_EPS_SCANS = 1e-6
+"""Tolerance on model-time comparisons, in scan periods: model time accumulated as a sum of Ts
+(0.01 s 300 times is not exactly 3.0) must not delay a timeout by a whole scan."""
+
+
+class GainStatus(Enum):
+    """Outcome of staging a gain set (the OPC UA layer maps it to a status code)."""
+
+    STAGED = "Good"
+    OUT_OF_RANGE = "BadOutOfRange"
+    INVALID_STATE = "BadInvalidState"
+
+
+@dataclass(frozen=True)
+class ScanInputs:
+    """What a scan reads.
+
+    Attributes
+    ----------
+    t_s : model time at the start of the scan [s].
+    levels_m : (n_tanks,) transmitter readings [m] (NaN where unavailable).
+    good : (n_tanks,) quality of each reading as delivered by the field link.
+    io_healthy : whether the field link worked this scan (False makes every reading bad).
+    """
+
+    t_s: float
+    levels_m: FloatArray
+    good: BoolArray
+    io_healthy: bool = True
+
+
+@dataclass(frozen=True)
+class ScanOutputs:
+    """What a scan writes: pump commands (pump order, pump units) and the values to publish."""
+
+    commands: FloatArray
+    values: dict[str, Any]
+
+
+@dataclass
+class _Loop:
+    spec: LoopSpec
+    index: int  # index among all loops (LIC order)
+    tank: int  # tank index of its PV
+    pump: int  # pump index of its actuator
+    mv_min: float
+    mv_max: float
+    scale: float
+    sp_m: float
+    mode: LoopMode
+    manual_mv: float
+    remote_mv: float
+    pid: Pid | None = None  # the MIMO PID block of the loop's group (block pid)
+    pid_index: int | None = None  # position in that block
+    block: NlPi | AdaptiveNlPi | Mrac | None = None
+    fixed: PidGainsSpec | None = None
+    applied: PidGainsSpec | None = None
+    last_accepted: PidGainsSpec | None = None
+    staged: PidGainsSpec | None = None
+    source: GainSource = GainSource.FIXED
+    mv: float = 0.0
+    pv_m: float = math.nan  # PV used this scan [m]; NaN while bad
+    pv_bad: bool = False
+    pv_last_good_m: float = 0.0  # published while the PV is bad
+    bad_scans: int = 0  # consecutive bad-PV scans (non-PID blocks; the PID counts its own)
+    substituted: bool = False  # the substitute output was applied this scan
+    working_sp_m: float | None = None  # ramped setpoint of a non-PID block [m] (None before a scan)
+
+
+@dataclass
+class _Watchdog:
+    timeout_s: float
+    good_scans_needed: int
+    last_value: int | None = None
+    last_change_s: float | None = None  # None until the first scan (grace period starts there)
+    alive: bool = False
+    ever_alive: bool = False
+    good_scans: int = 0
+    expired: bool = False
+
+
+@dataclass
+class _Interlock:
+    tank: int
+    tank_name: str
+    high_high_m: float
+    reset_below_m: float
+    tripped: bool = False
+
+
+@dataclass
+class _Frozen:
+    last: FloatArray
+    repeats: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+@dataclass
+class _PidGroup:
+    """PID loops coupled by cross gains, run as one MIMO block."""
+
+    loops: list[_Loop]
+    block: Pid
+
+
+class PlcProgram:
+    """The PLC program of a site, scanned by :meth:`scan`.
+
+    Operator and supervisor requests (``set_sp``, ``set_mode``, ``set_manual_mv``,
+    ``set_remote_mv``, ``heartbeat``, ``stage_gains``, ``reset_interlocks``) take effect at the
+    next scan; the value checks of the contract (type, finiteness, EURange) are the OPC UA layer's
+    job, the checks that need the program's state are made here (``ValueError`` on refusal).
+
+    Parameters
+    ----------
+    site : a site config with a ``plc`` section.
+    watchdog_timeout_s : heartbeat timeout in model time; default: the config's (the runtime
+        raises it to a wall-clock floor at high speed).
+
+    Raises
+    ------
+    ValueError
+        No ``plc`` section; a loop's MV range does not overlap its pump's command range; PID loops
+        coupled by cross gains disagree on ``pv_bad_scans`` or ``derivative_filter_s``.
+    """
+
+    def __init__(self, site: SiteConfig, *, watchdog_timeout_s: float | None = None) -> None:
+        if site.plc is None:
+            raise ValueError(f"site {site.name!r} has no plc section")
+        self.site = site
+        plc = site.plc
+        self.ts_s = plc.scan_period_s
+        tanks = site.tank_names
+        pumps = site.pump_names
+        self.n_tanks = len(tanks)
+        self.n_pumps = len(pumps)
+        self.scan_count = 0
+        self.t_s = 0.0
+        self.pump_min = np.array([p.command_min for p in site.plant.pumps], dtype=float)
+        self.pump_max = np.array([p.command_max for p in site.plant.pumps], dtype=float)
+        self.pump_tank = np.array([tanks.index(p.feeds) for p in site.plant.pumps], dtype=np.int64)
+        self.commands = np.array([p.initial_command for p in site.plant.pumps], dtype=float)
+        self.tr_range = np.array([t.transmitter_range() for t in site.plant.tanks], dtype=float)
+        sw = [t.switch_levels() for t in site.plant.tanks]
+        self.high_m = np.array([s.high_m for s in sw])
+        self.low_m = np.array([s.low_m for s in sw])
+        self.levels_m = np.full(self.n_tanks, math.nan)
+        self.good = np.zeros(self.n_tanks, dtype=bool)
+        self.last_good_m = np.zeros(self.n_tanks)
+        self._raw_m = np.full(self.n_tanks, math.nan)  # delivered, finite readings (for interlocks)
+        self.io_healthy = False
+        self.pv_frozen_scans = plc.pv_frozen_scans
+        self._frozen = _Frozen(
+            last=np.full(self.n_tanks, math.nan), repeats=np.zeros(self.n_tanks, dtype=np.int64)
+        )
+        self.watchdog = _Watchdog(
+            timeout_s=plc.watchdog.timeout_s if watchdog_timeout_s is None else watchdog_timeout_s,
+            good_scans_needed=plc.watchdog.good_scans_to_accept,
+        )
+        self.fallback = plc.watchdog.fallback
+        self.interlocks = [
+            _Interlock(tanks.index(il.tank), il.tank, il.high_high_m, il.reset_below_m)
+            for il in plc.interlocks
+        ]
+        self.hh_m = np.full(self.n_tanks, math.inf)
+        for il in self.interlocks:
+            self.hh_m[il.tank] = min(self.hh_m[il.tank], il.high_high_m)
+        self.loops: list[_Loop] = []
+        for j, spec in enumerate(plc.loops):
+            pump = site.plant.pump(spec.actuator)
+            # The loop's MV range never leaves the pump's command range.
+            lo = max(spec.mv_min, pump.command_min) if spec.mv_min is not None else pump.command_min
+            hi = min(spec.mv_max, pump.command_max) if spec.mv_max is not None else pump.command_max
+            if not lo < hi:
+                raise ValueError(
+                    f"plc.loops {spec.name}: MV range [{spec.mv_min}, {spec.mv_max}] does not overlap "
+                    f"{pump.name}'s command range [{pump.command_min}, {pump.command_max}]"
+                )
+            manual = spec.manual_mv if spec.manual_mv is not None else pump.initial_command
+            mv0 = min(max(pump.initial_command, lo), hi)
+            self.loops.append(
+                _Loop(
+                    spec=spec,
+                    index=j,
+                    tank=tanks.index("T" + spec.pv[2:]),
+                    pump=pumps.index(spec.actuator),
+                    mv_min=lo,
+                    mv_max=hi,
+                    scale=ERROR_SCALE[spec.error_unit],
+                    sp_m=spec.setpoint_m,
+                    mode=spec.mode_enum,
+                    manual_mv=min(max(manual, lo), hi),
+                    remote_mv=mv0,
+                    mv=mv0,
+                    fixed=spec.gains,
+                    applied=spec.gains,
+                    last_accepted=spec.gains,
+                )
+            )
+        self._pending_heartbeat: int | None = None
+        self._build_blocks()
+
+    # ---- construction -------------------------------------------------------------------
+
+    def _build_blocks(self) -> None:
+        self.pid_loops = [lp for lp in self.loops if lp.spec.block == "pid"]
+        self.pid_groups = [self._make_pid_group(g) for g in self._coupled_groups(self.pid_loops)]
+        for lp in self.loops:
+            if lp.spec.block == "nlpi":
+                lp.block = self._make_nlpi(lp)
+            elif lp.spec.block == "mrac":
+                lp.block = self._make_mrac(lp)
+            if lp.block is not None and lp.mode is not LoopMode.AUTO:
+                lp.block.set_mode(
+                    LoopMode.MANUAL, lp.manual_mv if lp.mode is LoopMode.MANUAL else lp.remote_mv
+                )
+
+    @staticmethod
+    def _coupled_groups(loops: list[_Loop]) -> list[list[_Loop]]:
+        """Connected components of the cross-gain graph (loops in LIC order within a group)."""
+        parent = {lp.spec.name: lp.spec.name for lp in loops}
+
+        def root(name: str) -> str:
+            while parent[name] != name:
+                name = parent[name]
+            return name
+
+        for lp in loops:
+            for other in lp.spec.cross_gains:
+                if other in parent:
+                    parent[root(other)] = root(lp.spec.name)
+        groups: dict[str, list[_Loop]] = {}
+        for lp in loops:
+            groups.setdefault(root(lp.spec.name), []).append(lp)
+        return list(groups.values())
+
+    def _make_pid_group(self, loops: list[_Loop]) -> _PidGroup:
+        for attr in ("pv_bad_scans", "derivative_filter_s"):
+            values = {getattr(lp.spec, attr) for lp in loops}
+            if len(values) > 1:
+                names = ", ".join(lp.spec.name for lp in loops)
+                raise ValueError(f"plc.loops {names}: loops coupled by cross_gains must share {attr}")
+        cfg = PidConfig(
+            n_loops=len(loops),
+            ts_s=self.ts_s,
+            u_min=[lp.mv_min for lp in loops],
+            u_max=[lp.mv_max for lp in loops],
+            du_max=[lp.spec.du_max or math.inf for lp in loops]
+            if any(lp.spec.du_max for lp in loops)
+            else None,
+            d_filter_tf_s=loops[0].spec.derivative_filter_s,
+            sp_min=[lp.spec.sp_min_m * lp.scale for lp in loops],
+            sp_max=[lp.spec.sp_max_m * lp.scale for lp in loops],
+            sp_rate=[(lp.spec.sp_ramp_m_s or math.inf) * lp.scale for lp in loops]
+            if any(lp.spec.sp_ramp_m_s for lp in loops)
+            else None,
+            initial_mv=[lp.mv for lp in loops],
+            pv_bad_scans=loops[0].spec.pv_bad_scans,
+            substitute=[lp.spec.substitute for lp in loops],
+            substitute_mv=[min(max(lp.spec.substitute_mv, lp.mv_min), lp.mv_max) for lp in loops],
+            initial_mode=[lp.mode for lp in loops],
+        )
+        group = _PidGroup(loops=loops, block=Pid(cfg, self._group_gains(loops)))
+        for k, lp in enumerate(loops):
+            lp.pid = group.block
+            lp.pid_index = k
+            if lp.mode is LoopMode.MANUAL:
+                group.block.set_mode(k, LoopMode.MANUAL, lp.manual_mv)
+        return group
+
+    @staticmethod
+    def _group_gains(loops: list[_Loop]) -> PidGains:
+        """The group's gain matrices: applied gains on the diagonal, fixed cross gains off it."""
+        n = len(loops)
+        kp, ki, kd = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
+        index = {lp.spec.name: k for k, lp in enumerate(loops)}
+        for i, lp in enumerate(loops):
+            assert lp.applied is not None
+            kp[i, i], ki[i, i], kd[i, i] = lp.applied.kp, lp.applied.ki, lp.applied.kd
+            for other, g in lp.spec.cross_gains.items():
+                j = index.get(other)
+                if j is not None:
+                    kp[i, j], ki[i, j], kd[i, j] = g.kp, g.ki, g.kd
+        return PidGains(kp, ki, kd)
+
+    def _make_nlpi(self, lp: _Loop) -> NlPi | AdaptiveNlPi:
+        p = lp.spec.nlpi
+        assert p is not None
+        if p.adaptive:
+            return AdaptiveNlPi(
+                AdaptiveNlPiConfig(
+                    ts_s=self.ts_s,
+                    zeta=p.zeta,
+                    wn=p.wn_rad_s,
+                    b0=p.b,
+                    a_prime0=p.a_prime,
+                    u_min=lp.mv_min,
+                    u_max=lp.mv_max,
+                    initial_mv=lp.mv,
+                    memory_s=p.memory_s,
+                )
+            )
+        gains = nlpi_gains(p.b, p.a_prime, p.zeta, p.wn_rad_s)
+        return NlPi(
+            NlPiConfig(ts_s=self.ts_s, gains=gains, u_min=lp.mv_min, u_max=lp.mv_max, initial_mv=lp.mv)
+        )
+
+    def _make_mrac(self, lp: _Loop) -> Mrac:
+        p = lp.spec.mrac
+        assert p is not None
+        return Mrac(
+            MracConfig(
+                ts_s=self.ts_s,
+                law="mit" if p.law == "mit" else "pi",
+                wn=p.wn_rad_s,
+                delta=p.delta,
+                gamma=p.gamma,
+                alpha=p.alpha,
+                theta0=p.theta_initial,
+                theta_min=p.theta_min,
+                theta_max=p.theta_max,
+                u_min=lp.mv_min,
+                u_max=lp.mv_max,
+                initial_mv=lp.mv,
+            )
+        )
+
+    # ---- requests between scans ---------------------------------------------------------
+
+    def loop(self, name: str) -> _Loop:
+        """The loop called ``name`` (LIC1, ...)."""
+        for lp in self.loops:
+            if lp.spec.name == name:
+                return lp
+        raise KeyError(f"unknown loop {name!r}")
+
+    def set_sp(self, name: str, sp_m: float) -> None:
+        """Operator setpoint [m]; must lie in [sp_min_m, sp_max_m]."""
+        lp = self.loop(name)
+        if not (math.isfinite(sp_m) and lp.spec.sp_min_m <= sp_m <= lp.spec.sp_max_m):
+            raise ValueError(f"{name} SP {sp_m} outside [{lp.spec.sp_min_m}, {lp.spec.sp_max_m}]")
+        lp.sp_m = float(sp_m)
+
+    def set_mode(self, name: str, mode: LoopMode) -> None:
+        """Switch a loop's mode (bumpless in every direction: MANUAL and REMOTE start from the MV)."""
+        lp = self.loop(name)
+        mode = LoopMode(mode)
+        if mode is lp.mode:
+            return
+        if lp.pid is not None and lp.pid_index is not None:
+            lp.pid.set_mode(lp.pid_index, mode)
+            if mode is LoopMode.REMOTE:
+                # Enter REMOTE holding the applied MV until the supervisor writes RemoteMV.
+                lp.remote_mv = float(lp.pid.remote_mv[lp.pid_index])
+            elif mode is LoopMode.MANUAL:
+                lp.manual_mv = float(lp.pid.manual_mv[lp.pid_index])
+        elif lp.block is not None:
+            if mode is LoopMode.AUTO:
+                lp.block.set_mode(LoopMode.AUTO)
+            else:
+                lp.block.set_mode(LoopMode.MANUAL, lp.mv)
+                if mode is LoopMode.MANUAL:
+                    lp.manual_mv = lp.mv
+                else:
+                    lp.remote_mv = lp.mv
+        lp.mode = mode
+
+    def set_manual_mv(self, name: str, mv: float) -> None:
+        """Operator output for MANUAL [pump unit]; must lie in the MV range."""
+        lp = self.loop(name)
+        self._check_mv(lp, mv)
+        lp.manual_mv = float(mv)
+        if lp.pid is not None and lp.pid_index is not None:
+            lp.pid.set_manual_mv(lp.pid_index, mv)
+        elif lp.block is not None and lp.mode is LoopMode.MANUAL:
+            lp.block.set_manual_mv(mv)
+
+    def set_remote_mv(self, name: str, mv: float) -> None:
+        """Supervisor output for REMOTE [pump unit]; must lie in the MV range."""
+        lp = self.loop(name)
+        self._check_mv(lp, mv)
+        lp.remote_mv = float(mv)
+        if lp.pid is not None and lp.pid_index is not None:
+            lp.pid.set_remote_mv(lp.pid_index, mv)
+        elif lp.block is not None and lp.mode is LoopMode.REMOTE:
+            lp.block.set_manual_mv(mv)
+
+    @staticmethod
+    def _check_mv(lp: _Loop, mv: float) -> None:
+        if not (math.isfinite(mv) and lp.mv_min <= mv <= lp.mv_max):
+            raise ValueError(f"{lp.spec.name} MV {mv} outside [{lp.mv_min}, {lp.mv_max}]")
+
+    def heartbeat(self, value: int) -> None:
+        """The supervisor wrote its heartbeat (any change counts as alive at the next scan)."""
+        self._pending_heartbeat = int(value)
+
+    @property
+    def supervisor_trusted(self) -> bool:
+        """Alive, and alive long enough for its gains to be accepted."""
+        w = self.watchdog
+        return w.alive and w.good_scans >= w.good_scans_needed
+
+    def stage_gains(self, name: str, kp: float, ki: float, kd: float) -> GainStatus:
+        """Validate (Kp, Ki, Kd) and stage them for the next scan boundary; all or nothing.
+
+        Order of the checks: a block without PID gains answers INVALID_STATE; a non-finite value
+        or one outside the loop's ``gain_box`` (when configured) OUT_OF_RANGE; a supervisor that
+        is not trusted yet INVALID_STATE. A refused call changes nothing.
+        """
+        lp = self.loop(name)
+        if lp.spec.block != "pid":
+            return GainStatus.INVALID_STATE
+        try:
+            values = (float(kp), float(ki), float(kd))
+        except (TypeError, ValueError):
+            return GainStatus.OUT_OF_RANGE
+        if not all(math.isfinite(v) for v in values):
+            return GainStatus.OUT_OF_RANGE
+        box = lp.spec.gain_box
+        if box is not None and not box.contains(*values):
+            return GainStatus.OUT_OF_RANGE
+        if not self.supervisor_trusted:
+            return GainStatus.INVALID_STATE
+        lp.staged = PidGainsSpec(kp=values[0], ki=values[1], kd=values[2])
+        return GainStatus.STAGED
+
+    def reset_interlocks(self) -> list[str]:
+        """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""
+        reset = []
+        for il in self.interlocks:
+            level = self.levels_m[il.tank]
+            if il.tripped and self.good[il.tank] and level < il.reset_below_m:
+                il.tripped = False
+                reset.append(il.tank_name)
+        return reset
+
+    # ---- the scan -----------------------------------------------------------------------
+
+    def scan(self, inputs: ScanInputs) -> ScanOutputs:
+        """Run one scan at model time ``inputs.t_s``; see the module docstring for the order.
+
+        Raises
+        ------
+        ValueError
+            ``levels_m`` or ``good`` does not have one entry per tank (a programming error).
+        """
+        levels = np.asarray(inputs.levels_m, dtype=float)
+        delivered = np.asarray(inputs.good, dtype=bool)
+        if levels.shape != (self.n_tanks,) or delivered.shape != (self.n_tanks,):
+            raise ValueError(  # checked before anything changes: a refused scan leaves no trace
+                f"scan inputs need {self.n_tanks} levels and qualities, got shapes "
+                f"{levels.shape} and {delivered.shape}"
+            )
+        self.t_s = float(inputs.t_s)
+        if self._run_watchdog():
+            self._fall_back()
+        else:
+            self._apply_staged_gains()
+        self._read_inputs(levels, delivered, bool(inputs.io_healthy))
+        self._execute_blocks()
+        forced = self._apply_interlocks()
+        self._write_outputs(forced)
+        self.scan_count += 1
+        return ScanOutputs(commands=self.commands.copy(), values=self.values())
+
+    def _set_pid_gains(self) -> None:
+        for group in self.pid_groups:
+            g = self._group_gains(group.loops)
+            group.block.set_gains(g.Kp, g.Ki, g.Kd)
+
+    def _apply_staged_gains(self) -> None:
+        changed = False
+        for lp in self.loops:
+            if lp.staged is not None:
+                lp.applied = lp.staged
+                lp.last_accepted = lp.staged
+                lp.staged = None
+                lp.source = GainSource.SUPERVISOR
+                changed = True
+        if changed:
+            self._set_pid_gains()
+
+    def _run_watchdog(self) -> bool:
+        """Update Alive from the heartbeat; return whether the timeout has expired."""
+        w = self.watchdog
+        value = self._pending_heartbeat
+        self._pending_heartbeat = None
+        if w.last_change_s is None:
+            w.last_change_s = self.t_s  # grace period: the first timeout counts from the first scan
+        if value is not None and value != w.last_value:
+            w.last_value = value
+            w.last_change_s = self.t_s
+        expired = self.t_s - w.last_change_s >= w.timeout_s - _TIME_EPS_SCANS * self.ts_s
+        alive = w.last_value is not None and not expired
+        if alive:
+            w.good_scans += 1
+            w.ever_alive = True
+        else:
+            w.good_scans = 0
+        w.alive = alive
+        w.expired = expired
+        return expired
+
+    def _fall_back(self) -> None:
+        """Supervisor lost: staged gains dropped, supervisor gains -> FALLBACK, REMOTE -> AUTO."""
+        changed = False
+        for lp in self.loops:
+            lp.staged = None
+            if lp.source is GainSource.SUPERVISOR:
+                lp.applied = lp.fixed if self.fallback == "fixed" else lp.last_accepted
+                lp.source = GainSource.FALLBACK
+                changed = True
+            if lp.mode is LoopMode.REMOTE:
+                self.set_mode(lp.spec.name, LoopMode.AUTO)
+        if changed:
+            self._set_pid_gains()
+
+    def _read_inputs(self, levels: FloatArray, delivered: BoolArray, io_healthy: bool) -> None:
+        self.io_healthy = io_healthy
+        delivered = delivered & np.isfinite(levels) & self.io_healthy
+        self._raw_m = np.where(delivered, levels, np.nan)
+        good = delivered & (levels >= self.tr_range[:, 0]) & (levels <= self.tr_range[:, 1])
+        if self.pv_frozen_scans > 0:
+            same = levels == self._frozen.last
+            self._frozen.repeats = np.where(same, self._frozen.repeats + 1, 0)
+            self._frozen.last = levels.copy()
+            good &= self._frozen.repeats < self.pv_frozen_scans
+        self.levels_m = np.where(good, levels, np.nan)
+        self.good = good
+        self.last_good_m = np.where(good, levels, self.last_good_m)
+
+    def _execute_blocks(self) -> None:
+        for lp in self.loops:
+            lp.pv_bad = not bool(self.good[lp.tank])
+            lp.pv_m = math.nan if lp.pv_bad else float(self.levels_m[lp.tank])
+            if not lp.pv_bad:
+                lp.pv_last_good_m = lp.pv_m
+        for group in self.pid_groups:
+            sp = np.array([lp.sp_m * lp.scale for lp in group.loops])
+            pv = np.array([lp.pv_m * lp.scale for lp in group.loops])  # NaN where bad
+            res = group.block.step(sp, pv, np.array([not lp.pv_bad for lp in group.loops]))
+            for k, lp in enumerate(group.loops):
+                lp.mv = float(res.mv[k])
+                lp.substituted = bool(res.substituted[k])
+        for lp in self.loops:
+            if lp.block is not None:
+                self._step_block(lp, lp.block)
+
+    def _step_block(self, lp: _Loop, block: NlPi | AdaptiveNlPi | Mrac) -> None:
+        """One scan of a single-loop block: SP ramp, the block, PV-bad substitute, rate limit."""
+        prev = lp.mv
+        lp.bad_scans = lp.bad_scans + 1 if lp.pv_bad else 0
+        spec = lp.spec
+        sp = lp.sp_m
+        if spec.sp_ramp_m_s is not None and lp.working_sp_m is not None:
+            ramp = spec.sp_ramp_m_s * self.ts_s
+            sp = lp.working_sp_m + min(max(sp - lp.working_sp_m, -ramp), ramp)
+        lp.working_sp_m = sp
+        lp.substituted = lp.pv_bad and lp.bad_scans >= spec.pv_bad_scans and lp.mode is not LoopMode.MANUAL
+        track = False
+        if isinstance(block, Mrac):
+            if lp.pv_bad:
+                # MRAC needs a PV: its MANUAL path (MANUAL, REMOTE) still applies the held value,
+                # AUTO holds; either way it re-initialises from the applied MV when the PV returns.
+                raw = block.manual_mv if block.mode is LoopMode.MANUAL else prev
+                track = True
+            else:
+                raw = float(block.step(sp, lp.pv_m).mv)
+        else:
+            # A bad PV holds the NL-PI (and breaks the adaptive variant's regressor chain).
+            pv = sp if lp.pv_bad else lp.pv_m
+            raw = float(block.step(sp, pv, pv_good=not lp.pv_bad).mv)
+        if lp.substituted:
+            raw = min(max(spec.substitute_mv, lp.mv_min), lp.mv_max) if spec.substitute == "value" else prev
+            track = True  # the block re-initialises from the applied MV on its first good scan
+        du = spec.du_max if spec.du_max is not None else math.inf
+        mv = min(max(raw, prev - du, lp.mv_min), prev + du, lp.mv_max)
+        if track or mv != raw:
+            block.track(mv)
+        lp.mv = mv
+
+    def _apply_interlocks(self) -> BoolArray:
+        """Latch trips; return which pumps are forced to their lowest command this scan."""
+        for il in self.interlocks:
+            # Fail-safe: any delivered finite reading counts, even over-range or frozen.
+            if self._raw_m[il.tank] >= il.high_high_m:
+                il.tripped = True
+        tripped = np.zeros(self.n_tanks, dtype=bool)
+        for il in self.interlocks:
+            tripped[il.tank] |= il.tripped
+        forced: BoolArray = tripped[self.pump_tank]
+        for lp in self.loops:
+            if not forced[lp.pump]:
+                continue
+            lp.mv = float(self.pump_min[lp.pump])
+            held = min(max(lp.mv, lp.mv_min), lp.mv_max)
+            if lp.pid is not None and lp.pid_index is not None:
+                lp.pid.track(lp.pid_index, held)
+                if lp.mode is LoopMode.MANUAL:
+                    lp.pid.set_manual_mv(lp.pid_index, held)
+                elif lp.mode is LoopMode.REMOTE:
+                    lp.pid.set_remote_mv(lp.pid_index, held)
+            elif lp.block is not None:
+                lp.block.track(held)
+                if lp.mode is not LoopMode.AUTO:
+                    lp.block.set_manual_mv(held)
+            if lp.mode is LoopMode.MANUAL:
+                lp.manual_mv = held
+            elif lp.mode is LoopMode.REMOTE:
+                lp.remote_mv = held
+        return forced
+
+    def _write_outputs(self, forced: BoolArray) -> None:
+        for lp in self.loops:
+            self.commands[lp.pump] = lp.mv
+        self.commands = np.where(forced, self.pump_min, np.clip(self.commands, self.pump_min, self.pump_max))
+
+    # ---- publishing ---------------------------------------------------------------------
+
+    def values(self) -> dict[str, Any]:
+        """Every PLC node's value the program owns, keyed by tag path (plain Python types).
+
+        All variables of :func:`tanklab.tags.plc_tags` except :data:`RUNTIME_OWNED_TAGS` and
+        ``PLC.LIC*.Block``. A bad PV is published as its last good value (0 before the first
+        one), with its quality on ``PLC.IO.LT*.Good`` and ``PLC.Alarms.LIC*PvBad``.
+        """
+        v: dict[str, Any] = {}
+        for lp in self.loops:
+            p = f"PLC.{lp.spec.name}"
+            v[f"{p}.SP"] = float(lp.sp_m)
+            v[f"{p}.PV"] = float(lp.pv_last_good_m)
+            v[f"{p}.MV"] = float(lp.mv)
+            v[f"{p}.Mode"] = int(lp.mode)
+            v[f"{p}.ManualMV"] = float(lp.manual_mv)
+            v[f"{p}.RemoteMV"] = float(lp.remote_mv)
+            g = lp.applied
+            v[f"{p}.Kp"] = float(g.kp) if g else 0.0
+            v[f"{p}.Ki"] = float(g.ki) if g else 0.0
+            v[f"{p}.Kd"] = float(g.kd) if g else 0.0
+            v[f"{p}.GainSource"] = int(lp.source)
+            v[f"PLC.Alarms.{lp.spec.name}PvBad"] = bool(lp.pv_bad)
+        v["PLC.Status.Scan"] = int(self.scan_count)
+        v["PLC.Status.IoHealthy"] = bool(self.io_healthy)
+        v["PLC.Status.ModelTime"] = float(self.t_s)
+        v["PLC.Supervisor.Alive"] = bool(self.watchdog.alive)
+        v["PLC.Alarms.IoFault"] = not self.io_healthy
+        v["PLC.Alarms.SupervisorLost"] = bool(self.watchdog.ever_alive and not self.watchdog.alive)
+        for i, name in enumerate(self.site.tank_names):
+            level = float(self.levels_m[i])
+            ok = bool(self.good[i])
+            v[f"PLC.IO.LT{name[1:]}.PV"] = float(self.last_good_m[i])
+            v[f"PLC.IO.LT{name[1:]}.Good"] = ok
+            v[f"PLC.Alarms.{name}H"] = bool(ok and level >= self.high_m[i])
+            v[f"PLC.Alarms.{name}L"] = bool(ok and level <= self.low_m[i])
+            v[f"PLC.Alarms.{name}HH"] = bool(self._raw_m[i] >= self.hh_m[i])
+        for il in self.interlocks:
+            v[f"PLC.Interlock.{il.tank_name}HH"] = bool(il.tripped)
+        return v

@@ -1,0 +1,149 @@
+"""The PLC's scan loop: deadlines on an injected clock, the field link, the server.
+
+Realtime: scans start on deadlines ``next = previous + Ts / speed`` (wall seconds) on the clock;
+a scan whose work runs past the next deadline is an overrun (counted, published, and the
+missed deadlines are skipped rather than run in a burst). Model time advances by the nominal
+``Ts`` per scan, whatever the speed: the blocks always compute with the model-time Ts.
+
+Lock-step: no deadlines. Each scan ends with ``Plant.Sim.Advance(Ts, commands)`` (the plant
+integrates one scan period and returns the next readings) and then waits, at most 2 s of wall
+time, for the supervisor to acknowledge the scan by changing ``Heartbeat``; a missing ack counts
+as a missed heartbeat, and once the watchdog has declared the supervisor lost the PLC stops
+waiting for it.
+
+Model-time timeouts have a wall-clock floor of 1 s: at speed X the heartbeat timeout is at
+least X model seconds, so scheduling noise never trips the watchdog.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plc_emulator.link import FieldLink, FieldReadings
+from plc_emulator.program import PlcProgram, ScanInputs
+from plc_emulator.server import PlcServer
+from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
+from tanklab.config import SiteConfig
+
+log = logging.getLogger(__name__)
+
+WALL_FLOOR_S = 1.0
+"""Smallest wall time any model-time timeout may correspond to [s]."""
+LOCKSTEP_ACK_S = 2.0
+"""Longest wall wait for the supervisor's acknowledgement of a lock-step scan [s]."""
+
+
+@dataclass
+class PlcRunStats:
+    """What a run measured: scans, overruns, start lateness of each scan [wall s]."""
+
+    scans: int = 0
+    overruns: int = 0
+    lateness_s: list[float] = field(default_factory=list)
+    io_failures: int = 0
+
+
+async def _wait_event(event: asyncio.Event, timeout_s: float) -> bool:
+    try:
+        await asyncio.wait_for(event.wait(), timeout_s)
+    except TimeoutError:
+        return False
+    return True
+
+
+async def run_plc(
+    site: SiteConfig,
+    *,
+    host: str,
+    port: int,
+    plant_url: str,
+    stop: asyncio.Event,
+    speed: float = 1.0,
+    lockstep: bool = False,
+    clock: Clock | None = None,
+    ready: asyncio.Event | None = None,
+    stats: PlcRunStats | None = None,
+) -> PlcRunStats:
+    """Scan the PLC program against the plant until ``stop`` is set."""
+    if site.plc is None:
+        raise ValueError(f"site {site.name!r} has no plc section")
+    if not speed > 0:
+        raise ValueError(f"speed must be > 0, got {speed}")
+    clock = clock or MonotonicClock()
+    stats = stats or PlcRunStats()
+    ts = site.plc.scan_period_s
+    timeout = site.plc.watchdog.timeout_s
+    program = PlcProgram(site, watchdog_timeout_s=timeout if lockstep else max(timeout, WALL_FLOOR_S * speed))
+    server = PlcServer(site, program, host, port)
+    ack = asyncio.Event()
+    server.on_heartbeat = ack.set
+    field_link = FieldLink(site, plant_url, timeout_s=min(2.0, max(0.2, ts / speed)))
+    await server.start()
+    await server.publish({"PLC.Status.ScanPeriod": ts, "PLC.Supervisor.Timeout": program.watchdog.timeout_s})
+    if ready is not None:
+        ready.set()
+    period = ts / speed
+    deadlines = Deadlines(period_s=period, next_deadline=clock.now())
+    t_model = 0.0
+    pending: FieldReadings | None = None  # lock-step: readings returned by the last Advance
+    try:
+        while not stop.is_set():
+            if not lockstep:
+                await sleep_or_stop(clock, deadlines.next_deadline, stop)
+                if stop.is_set():
+                    break
+            started = clock.now()
+            deadlines.started(started)
+            readings = pending if pending is not None else await field_link.read_inputs()
+            pending = None
+            healthy = readings is not None
+            if readings is None:
+                stats.io_failures += 1
+                n = program.n_tanks
+                readings = FieldReadings(np.full(n, np.nan), np.zeros(n, dtype=bool))
+            ack.clear()
+            out = program.scan(ScanInputs(t_model, readings.levels_m, readings.good, healthy))
+            if lockstep:
+                result = await field_link.advance(ts, out.commands)
+                if result is not None:
+                    t_model, pending = result
+                else:
+                    t_model += ts
+            else:
+                if healthy:
+                    await field_link.write_commands(out.commands)
+                t_model += ts
+            duration = clock.now() - started
+            await server.publish(
+                {
+                    **out.values,
+                    "PLC.Status.LastScanDuration": duration,
+                    "PLC.Status.Overruns": deadlines.overruns,
+                }
+            )
+            stats.scans += 1
+            if lockstep:
+                if program.watchdog.alive:
+                    await _wait_event(ack, LOCKSTEP_ACK_S)
+                deadlines.next_deadline = clock.now()
+            else:
+                deadlines.finished(clock.now())
+            stats.overruns = deadlines.overruns
+    finally:
+        stats.lateness_s = list(deadlines.lateness_s)
+        await field_link.close()
+        await server.stop()
+        if stats.lateness_s:
+            p50, p99 = np.percentile(stats.lateness_s, [50, 99])
+            log.info(
+                "PLC stopped after %d scans: %d overruns, lateness p50 %.2f ms p99 %.2f ms",
+                stats.scans,
+                stats.overruns,
+                1e3 * p50,
+                1e3 * p99,
+            )
+    return stats

@@ -1,0 +1,114 @@
+"""The PLC's OPC UA server: the contract's PLC nodes over a :class:`PlcProgram`.
+
+Writes to ``SP``, ``Mode``, ``ManualMV``, ``RemoteMV`` and ``Supervisor.Heartbeat`` pass the
+contract's checks (:class:`tanklab.ua.WriteGuard`: type, finiteness, EURange, enum) and then
+the program's own (a refused write answers a Bad status and the old value stays).
+``LIC{j}.SetGains(Kp, Ki, Kd)`` validates all three and stages them for the next scan
+boundary: BadOutOfRange (not finite or outside the gain box), BadTypeMismatch (wrong argument
+types, checked by the adapter), BadInvalidState (a block without PID gains, or a supervisor that
+is not trusted yet). ``Interlock.Reset()`` resets the latched trips whose level is low enough.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from asyncua import Server, ua
+
+from plc_emulator.program import GainStatus, PlcProgram
+from tanklab.config import SiteConfig
+from tanklab.enums import LoopMode
+from tanklab.tags import APPLICATION_URIS, Tag, plc_tags, tags_by_path
+from tanklab.ua import MethodHandler, Publisher, build_nodes, install_write_guard
+
+log = logging.getLogger(__name__)
+
+_STATUS = {
+    GainStatus.STAGED: ua.StatusCodes.Good,
+    GainStatus.OUT_OF_RANGE: ua.StatusCodes.BadOutOfRange,
+    GainStatus.INVALID_STATE: ua.StatusCodes.BadInvalidState,
+}
+
+
+class PlcServer:
+    """Serves a :class:`PlcProgram` at ``opc.tcp://HOST:PORT/tanklab/plc``."""
+
+    def __init__(self, site: SiteConfig, program: PlcProgram, host: str, port: int) -> None:
+        self.site = site
+        self.program = program
+        self.url = f"opc.tcp://{host}:{port}/tanklab/plc"
+        self.tags = plc_tags(site)
+        self.by_path = tags_by_path(self.tags)
+        self.server = Server()
+        self.publisher: Publisher | None = None
+        self.on_heartbeat: Callable[[], None] | None = None
+
+    async def start(self) -> None:
+        """Initialise, build the address space and start listening."""
+        srv = self.server
+        await srv.init()
+        srv.set_endpoint(self.url)
+        srv.set_server_name("tanklab soft PLC")
+        await srv.set_application_uri(APPLICATION_URIS["plc"])
+        srv.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        methods: dict[str, MethodHandler] = {"PLC.Interlock.Reset": self._reset}
+        for lp in self.program.loops:
+            methods[f"PLC.{lp.spec.name}.SetGains"] = self._set_gains_for(lp.spec.name)
+        _, nodes = await build_nodes(srv, self.tags, methods)
+        install_write_guard(srv, self.tags, nodes, self._on_write)
+        self.publisher = Publisher(srv, self.by_path, nodes)
+        await srv.start()
+        static: dict[str, Any] = {f"PLC.{lp.spec.name}.Block": lp.spec.block for lp in self.program.loops}
+        await self.publish({**static, **self.program.values()})
+        log.info("PLC server listening at %s", self.url)
+
+    async def stop(self) -> None:
+        await self.server.stop()
+        log.info("PLC server stopped")
+
+    async def publish(self, values: dict[str, Any]) -> None:
+        """Publish the scan's values (and the runtime's status values)."""
+        assert self.publisher is not None
+        await self.publisher.publish(values)
+
+    # ---- writes and calls ---------------------------------------------------------------
+
+    def _on_write(self, tag: Tag, value: Any) -> ua.StatusCode | None:
+        parts = tag.path.split(".")
+        try:
+            if parts[1] == "Supervisor" and parts[2] == "Heartbeat":
+                self.program.heartbeat(int(value))
+                if self.on_heartbeat is not None:
+                    self.on_heartbeat()
+                return None
+            loop, item = parts[1], parts[2]
+            if item == "SP":
+                self.program.set_sp(loop, float(value))
+            elif item == "Mode":
+                self.program.set_mode(loop, LoopMode(int(value)))
+            elif item == "ManualMV":
+                self.program.set_manual_mv(loop, float(value))
+            elif item == "RemoteMV":
+                self.program.set_remote_mv(loop, float(value))
+            else:
+                return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+        except (ValueError, KeyError) as e:
+            log.info("write to %s refused: %s", tag.path, e)
+            return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
+        log.info("%s := %r", tag.path, value)
+        return None
+
+    def _set_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
+        async def set_gains(kp: float, ki: float, kd: float) -> list[ua.Variant] | ua.StatusCode:
+            status = self.program.stage_gains(loop, kp, ki, kd)
+            log.info("PLC.%s.SetGains(%g, %g, %g): %s", loop, kp, ki, kd, status.value)
+            return ua.StatusCode(_STATUS[status])
+
+        return set_gains
+
+    async def _reset(self) -> list[ua.Variant] | ua.StatusCode:
+        reset = self.program.reset_interlocks()
+        log.info("PLC.Interlock.Reset: reset %s", ", ".join(reset) or "nothing")
+        return ua.StatusCode(ua.StatusCodes.Good)

@@ -1,0 +1,206 @@
+"""The PLC and the plant as real processes on loopback (speed 20), driven by a real client.
+
+Assertions are on model time (``PLC.Status.ModelTime``, ``PLC.Status.Scan``); waiting for the
+processes goes through ``wait_until`` only.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from asyncua import Client, ua
+
+from helpers import ROOT, TierProcess, free_port, wait_until
+from tanklab.ua import resolve
+
+CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
+SPEED = "20"
+pytestmark = pytest.mark.process
+
+
+@pytest.fixture
+async def stack(tmp_path: Path):
+    pp, cp = free_port(), free_port()
+    plant_url = f"opc.tcp://127.0.0.1:{pp}/tanklab/plant"
+    state = str(tmp_path / "plant.json")
+    plant = await TierProcess(
+        "plant", "--config", CONFIG, "--port", str(pp), "--speed", SPEED, "--state-file", state
+    ).start()
+    plc = await TierProcess(
+        "plc", "--config", CONFIG, "--port", str(cp), "--plant-url", plant_url, "--speed", SPEED
+    ).start()
+    procs = {"plant": plant, "plc": plc, "plant_args": (pp, state)}
+    yield procs, f"opc.tcp://127.0.0.1:{cp}/tanklab/plc"
+    for p in (procs["plc"], procs["plant"]):
+        await p.stop()
+
+
+PATHS = [
+    "PLC.LIC1.SP",
+    "PLC.LIC1.PV",
+    "PLC.LIC1.MV",
+    "PLC.LIC1.Mode",
+    "PLC.LIC1.ManualMV",
+    "PLC.LIC1.RemoteMV",
+    "PLC.LIC1.Kp",
+    "PLC.LIC1.GainSource",
+    "PLC.LIC2.PV",
+    "PLC.Status.Scan",
+    "PLC.Status.IoHealthy",
+    "PLC.Status.ModelTime",
+    "PLC.Supervisor.Heartbeat",
+    "PLC.Supervisor.Alive",
+    "PLC.Alarms.IoFault",
+]
+
+
+async def test_plc_tracks_a_setpoint_step_through_the_real_plant(stack) -> None:
+    _, url = stack
+    async with Client(url) as client:
+        n = await resolve(client, PATHS)
+
+        # From empty tanks the fixed PIDs fill T1 to 0.4 m; then step the setpoint to 0.3 m.
+        async def settled_at(sp: float) -> bool:
+            pv = await n["PLC.LIC1.PV"].read_value()
+            return abs(pv - sp) < 0.01
+
+        await wait_until(lambda: settled_at(0.4), 60, what="T1 at 0.4 m")
+        t_step = await n["PLC.Status.ModelTime"].read_value()
+        await n["PLC.LIC1.SP"].write_value(ua.Variant(0.3, ua.VariantType.Double))
+        await wait_until(lambda: settled_at(0.3), 60, what="T1 at the new setpoint 0.3 m")
+        t_reached = await n["PLC.Status.ModelTime"].read_value()
+        # The level falls by outflow only (the pump at its lower limit): 0.1 m in model time
+        # bounded below by At * dh / q13 and above by the plant's slowest mode times a few.
+        assert 20.0 < t_reached - t_step < 900.0
+        assert await n["PLC.Status.IoHealthy"].read_value() is True
+
+
+async def test_bad_writes_are_refused_and_values_stay(stack) -> None:
+    _, url = stack
+    async with Client(url) as client:
+        n = await resolve(client, PATHS)
+        cases = [
+            ("PLC.LIC1.SP", ua.Variant(0.61, ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.SP", ua.Variant(-0.1, ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.SP", ua.Variant(float("nan"), ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.SP", ua.Variant(float("-inf"), ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.SP", ua.Variant(1, ua.VariantType.Int32), "BadTypeMismatch"),
+            ("PLC.LIC1.Mode", ua.Variant(3, ua.VariantType.Int32), "BadOutOfRange"),
+            ("PLC.LIC1.Mode", ua.Variant(1.0, ua.VariantType.Double), "BadTypeMismatch"),
+            ("PLC.LIC1.ManualMV", ua.Variant(2e-4, ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.ManualMV", ua.Variant(float("nan"), ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.RemoteMV", ua.Variant(-1e-5, ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.Kp", ua.Variant(1e-3, ua.VariantType.Double), "BadNotWritable"),
+            ("PLC.LIC1.GainSource", ua.Variant(1, ua.VariantType.Int32), "BadNotWritable"),
+            ("PLC.Supervisor.Heartbeat", ua.Variant(1.5, ua.VariantType.Double), "BadTypeMismatch"),
+        ]
+        for path, value, expected in cases:
+            before = await n[path].read_value()
+            with pytest.raises(ua.UaStatusCodeError) as err:
+                await n[path].write_value(value)
+            assert type(err.value).__name__ == expected, (path, value)
+            if path not in ("PLC.LIC1.Kp", "PLC.LIC1.GainSource"):  # these the scan republishes
+                assert await n[path].read_value() == before, path
+        # SetGains: outside the box, not finite, wrong type, supervisor not trusted.
+        idx = n["PLC.LIC1.SP"].nodeid.NamespaceIndex
+        obj = client.get_node(ua.NodeId("PLC.LIC1", idx))
+        method = ua.NodeId("PLC.LIC1.SetGains", idx)
+        kp_before = await n["PLC.LIC1.Kp"].read_value()
+        for args, expected in (
+            ((1.0, 1e-5, 0.0), "BadOutOfRange"),
+            ((float("nan"), 1e-5, 0.0), "BadOutOfRange"),
+            ((1e-3, 1e-5, float("inf")), "BadOutOfRange"),
+            ((ua.Variant(1, ua.VariantType.Int32), 1e-5, 0.0), "BadTypeMismatch"),
+            ((1e-3, 1e-5), "BadArgumentsMissing"),
+            ((1e-3, 1e-5, 0.0), "BadInvalidState"),  # no trusted supervisor yet
+        ):
+            with pytest.raises(ua.UaStatusCodeError) as err:
+                await obj.call_method(method, *args)
+            assert type(err.value).__name__ == expected, args
+        assert await n["PLC.LIC1.Kp"].read_value() == kp_before
+
+
+async def test_heartbeat_gains_and_fallback_within_timeout_plus_one_scan(stack) -> None:
+    _, url = stack
+    async with Client(url) as client:
+        n = await resolve(client, PATHS)
+        idx = n["PLC.LIC1.SP"].nodeid.NamespaceIndex
+        obj = client.get_node(ua.NodeId("PLC.LIC1", idx))
+        beat = 0
+
+        async def beat_and_check_trusted() -> bool:
+            nonlocal beat
+            beat += 1
+            await n["PLC.Supervisor.Heartbeat"].write_value(ua.Variant(beat, ua.VariantType.UInt32))
+            try:
+                await obj.call_method(ua.NodeId("PLC.LIC1.SetGains", idx), 8.0e-4, 8.0e-6, -1.0e-4)
+            except ua.UaStatusCodeError:
+                return False
+            return True
+
+        await wait_until(beat_and_check_trusted, 30, what="SetGains accepted after good heartbeats")
+
+        async def applied() -> bool:
+            await n["PLC.Supervisor.Heartbeat"].write_value(ua.Variant(beat, ua.VariantType.UInt32))
+            return await n["PLC.LIC1.GainSource"].read_value() == 1
+
+        await wait_until(applied, 20, what="supervisor gains applied")
+        assert await n["PLC.LIC1.Kp"].read_value() == pytest.approx(8.0e-4)
+        # Last heartbeat change: write a new value and note the model time of the next scan.
+        beat += 1
+        await n["PLC.Supervisor.Heartbeat"].write_value(ua.Variant(beat, ua.VariantType.UInt32))
+        scan0 = await n["PLC.Status.Scan"].read_value()
+        await wait_until(lambda: _scan_after(n, scan0), 10, what="a scan after the last heartbeat")
+        t_last = await n["PLC.Status.ModelTime"].read_value()
+
+        async def fell_back() -> bool:
+            return await n["PLC.LIC1.GainSource"].read_value() == 2
+
+        await wait_until(fell_back, 30, what="FALLBACK after heartbeat loss")
+        t_fb = await n["PLC.Status.ModelTime"].read_value()
+        # Timeout is max(3 s, 1 s wall * speed 20) = 20 s model; one scan is 1 s.
+        timeout = 20.0
+        assert t_fb - t_last <= timeout + 1.0 + 1.0  # + the scan between our two reads
+        assert await n["PLC.Supervisor.Alive"].read_value() is False
+        assert await n["PLC.LIC1.Kp"].read_value() == pytest.approx(4.29e-4)  # fallback: fixed gains
+
+
+async def _scan_after(n, scan0: int) -> bool:
+    return await n["PLC.Status.Scan"].read_value() > scan0
+
+
+async def test_plant_killed_and_restarted_plc_reports_reconnects_and_regulates(stack) -> None:
+    procs, url = stack
+    async with Client(url) as client:
+        n = await resolve(client, PATHS)
+
+        async def near_sp() -> bool:
+            return abs(await n["PLC.LIC1.PV"].read_value() - 0.4) < 0.02
+
+        await wait_until(near_sp, 60, what="T1 near 0.4 m before the plant is killed")
+        await procs["plant"].kill()
+
+        async def io_lost() -> bool:
+            return await n["PLC.Status.IoHealthy"].read_value() is False
+
+        await wait_until(io_lost, 20, what="IoHealthy false after the plant died")
+        assert await n["PLC.Alarms.IoFault"].read_value() is True
+        scans = await n["PLC.Status.Scan"].read_value()
+        await wait_until(lambda: _scan_after(n, scans + 5), 10, what="the PLC keeps scanning without a plant")
+        pp, state = procs["plant_args"]
+        procs["plant"] = await TierProcess(
+            "plant", "--config", CONFIG, "--port", str(pp), "--speed", SPEED, "--state-file", state
+        ).start()
+
+        async def io_back() -> bool:
+            return await n["PLC.Status.IoHealthy"].read_value() is True
+
+        await wait_until(io_back, 30, what="IoHealthy true after the plant returned")
+        t_back = await n["PLC.Status.ModelTime"].read_value()
+
+        async def regulating() -> bool:
+            t = await n["PLC.Status.ModelTime"].read_value()
+            return t - t_back > 60 and abs(await n["PLC.LIC1.PV"].read_value() - 0.4) < 0.02
+
+        await wait_until(regulating, 60, what="T1 regulated near 0.4 m after the restart")
