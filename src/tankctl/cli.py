@@ -208,6 +208,52 @@ def linearize(
 # --------------------------------------------------------------------------------------------
 
 
+def _port(port: int | None, default: int) -> int:
+    env_port = _env("TANKLAB_PORT")
+    try:
+        value = port if port is not None else int(env_port) if env_port else default
+    except ValueError:
+        raise fail(f"TANKLAB_PORT must be a port number, got {env_port!r}") from None
+    if not 1 <= value <= 65535:
+        raise fail(f"--port must be 1..65535, got {value}")
+    return value
+
+
+def _url(flag: str | None, env: str, default: str) -> str:
+    from tanklab.config import parse_endpoint_url
+
+    url = flag or _env(env) or default
+    try:
+        parse_endpoint_url(url)
+    except ValueError as e:
+        raise fail(f"{env.lower().removeprefix('tanklab_').replace('_', '-')}: {e}") from None
+    return url
+
+
+def serve(tier: str, banner: str, runner: Any) -> None:
+    """Run a tier's ``runner(stop, ready)`` until SIGINT/SIGTERM; print ``banner`` when it serves."""
+    setup_logging()
+
+    async def main(stop: asyncio.Event) -> None:
+        ready = asyncio.Event()
+        task = asyncio.create_task(runner(stop, ready))
+        waiter = asyncio.create_task(ready.wait())
+        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+        if ready.is_set():
+            typer.echo(banner)
+            sys.stdout.flush()
+        else:
+            waiter.cancel()
+        await task
+
+    try:
+        run_until_signal(main)
+    except OSError as e:
+        raise fail(f"{tier}: cannot serve: {e.strerror or e}") from None
+    except TanklabError as e:
+        raise fail(f"{tier}: {e}") from None
+
+
 @app.command()
 def plant(
     config: ConfigOpt = None,
@@ -223,48 +269,87 @@ def plant(
     from plant_sim.runtime import run_plant
 
     site = load(resolve_config(config))
-    host = host or _env("TANKLAB_HOST") or "127.0.0.1"
-    env_port = _env("TANKLAB_PORT")
-    try:
-        port = port if port is not None else int(env_port) if env_port else site.endpoints.plant.port
-    except ValueError:
-        raise fail(f"TANKLAB_PORT must be a port number, got {env_port!r}") from None
-    if not 1 <= port <= 65535:
-        raise fail(f"--port must be 1..65535, got {port}")
+    bind = host or _env("TANKLAB_HOST") or "127.0.0.1"
+    p = _port(port, site.endpoints.plant.port)
     spd = resolve_speed(speed)
-    setup_logging()
 
-    async def main(stop: asyncio.Event) -> None:
-        ready = asyncio.Event()
-        task = asyncio.create_task(
-            run_plant(
-                site,
-                host=host,
-                port=port,
-                speed=spd,
-                lockstep=lockstep,
-                stop=stop,
-                state_file=state_file,
-                ready=ready,
-            )
+    async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
+        await run_plant(
+            site,
+            host=bind,
+            port=p,
+            speed=spd,
+            lockstep=lockstep,
+            stop=stop,
+            state_file=state_file,
+            ready=ready,
         )
-        waiter = asyncio.create_task(ready.wait())
-        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
-        if ready.is_set():
-            typer.echo(
-                f"plant: {site.name} at opc.tcp://{host}:{port}/tanklab/plant (speed {spd:g})", err=False
-            )
-            sys.stdout.flush()
-        else:
-            waiter.cancel()
-        await task
 
-    try:
-        run_until_signal(main)
-    except OSError as e:
-        raise fail(f"cannot serve on {host}:{port}: {e.strerror or e}") from None
-    except TanklabError as e:
-        raise fail(str(e)) from None
+    serve("plant", f"plant: {site.name} at opc.tcp://{bind}:{p}/tanklab/plant (speed {spd:g})", runner)
+
+
+@app.command()
+def plc(
+    config: ConfigOpt = None,
+    plant_url: Annotated[str | None, typer.Option(help="Plant endpoint (env TANKLAB_PLANT_URL).")] = None,
+    host: HostOpt = None,
+    port: Annotated[int | None, typer.Option(help="TCP port (env TANKLAB_PORT; default 4841).")] = None,
+    speed: SpeedOpt = None,
+    lockstep: Annotated[
+        bool, typer.Option(help="Advance the plant one scan at a time (Plant.Sim.Advance).")
+    ] = False,
+) -> None:
+    """Serve the soft PLC at opc.tcp://HOST:PORT/tanklab/plc, scanning against the plant."""
+    from plc_emulator.runtime import run_plc
+
+    site = load(resolve_config(config))
+    if site.plc is None:
+        raise fail(f"{resolve_config(config)}: plc: the site has no PLC program")
+    bind = host or _env("TANKLAB_HOST") or "127.0.0.1"
+    p = _port(port, site.endpoints.plc.port)
+    spd = resolve_speed(speed)
+    below = _url(plant_url, "TANKLAB_PLANT_URL", site.endpoints.plant.url("plant"))
+
+    async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
+        await run_plc(
+            site, host=bind, port=p, plant_url=below, stop=stop, speed=spd, lockstep=lockstep, ready=ready
+        )
+
+    serve(
+        "plc", f"plc: {site.name} at opc.tcp://{bind}:{p}/tanklab/plc (plant {below}, speed {spd:g})", runner
+    )
+
+
+@app.command()
+def supervisor(
+    config: ConfigOpt = None,
+    plc_url: Annotated[str | None, typer.Option(help="PLC endpoint (env TANKLAB_PLC_URL).")] = None,
+    host: HostOpt = None,
+    port: Annotated[int | None, typer.Option(help="TCP port (env TANKLAB_PORT; default 4842).")] = None,
+    speed: SpeedOpt = None,
+    lockstep: Annotated[bool, typer.Option(help="Acknowledge every PLC scan as fast as possible.")] = False,
+) -> None:
+    """Serve the supervisor at opc.tcp://HOST:PORT/tanklab/supervisor, supervising the PLC."""
+    from supervisor.runtime import run_supervisor
+
+    site = load(resolve_config(config))
+    if site.supervisor is None:
+        raise fail(f"{resolve_config(config)}: supervisor: the site has no supervisor section")
+    bind = host or _env("TANKLAB_HOST") or "127.0.0.1"
+    p = _port(port, site.endpoints.supervisor.port)
+    spd = resolve_speed(speed)
+    below = _url(plc_url, "TANKLAB_PLC_URL", site.endpoints.plc.url("plc"))
+
+    async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
+        await run_supervisor(
+            site, host=bind, port=p, plc_url=below, stop=stop, speed=spd, lockstep=lockstep, ready=ready
+        )
+
+    serve(
+        "supervisor",
+        f"supervisor: {site.name} at opc.tcp://{bind}:{p}/tanklab/supervisor (plc {below}, speed {spd:g})",
+        runner,
+    )
 
 
 def main() -> None:
