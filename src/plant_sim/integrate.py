@@ -4,7 +4,9 @@ Both advance ``x' = f(t, x, u)`` over any ``dt`` with the inputs ``u`` held (zer
 as a PLC output is held between scans), then project the levels into [0, Hmax] with
 :meth:`TankNetwork.project`, which keeps the volume balance exact.
 
-- :func:`step_rk4` splits ``dt`` into ``ceil(dt / max_substep_s)`` classical RK4 steps. Runge-Kutta
+- :func:`step_rk4` splits ``dt`` into ``ceil(dt / max_substep_s)`` classical RK4 steps, evaluated
+  on Python floats (:class:`~plant_sim.models.ScalarRhs`, ten times faster than numpy on a few
+  states; a test checks it against the numpy right-hand side). Runge-Kutta
   methods preserve linear invariants, so the balance closes to rounding; the default
   ``max_substep_s = 0.05`` s is validated against the adaptive solver at tight tolerance in the
   tests (levels agree to 1e-7 m over a 200 s transient). This is the fast path (co-simulation).
@@ -20,7 +22,7 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from plant_sim.models import FloatArray, PlantInputs, TankNetwork
+from plant_sim.models import FloatArray, PlantInputs, ScalarRhs, TankNetwork
 from tanklab.errors import IntegrationError
 
 DEFAULT_MAX_SUBSTEP_S = 0.05
@@ -56,16 +58,21 @@ def step_rk4(
         return x.copy()
     n_sub = max(1, math.ceil(dt_s / max_substep_s - 1e-9))
     h = dt_s / n_sub
-    t = t_s
-    y = x.copy()
-    f = net.rhs
+    f = ScalarRhs(net, u)
+    m = len(x)
+    n = net.n_tanks
+    hmax = f.hmax
+    y = [float(v) for v in x]
     for _ in range(n_sub):
-        k1 = f(t, y, u)
-        k2 = f(t + h / 2, y + (h / 2) * k1, u)
-        k3 = f(t + h / 2, y + (h / 2) * k2, u)
-        k4 = f(t + h, y + h * k3, u)
-        y = net.project(y + (h / 6) * (k1 + 2 * k2 + 2 * k3 + k4))
-        t += h
+        k1 = f(y)
+        k2 = f([y[i] + 0.5 * h * k1[i] for i in range(m)])
+        k3 = f([y[i] + 0.5 * h * k2[i] for i in range(m)])
+        k4 = f([y[i] + h * k3[i] for i in range(m)])
+        y = [y[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in range(m)]
+        if any(y[i] < 0.0 or y[i] > hmax[i] for i in range(n)):
+            y = net.project(np.array(y)).tolist()
+    t = t_s + dt_s
+    y = np.array(y)
     if not np.all(np.isfinite(y)):
         raise IntegrationError(f"RK4 produced a non-finite state at t = {t:.6g} s")
     return y

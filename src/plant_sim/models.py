@@ -316,3 +316,88 @@ def default_inputs(net: TankNetwork, plant: PlantConfig) -> PlantInputs:
         leak_openings=np.array([t.initial_leak_opening for t in plant.tanks], dtype=float),
         disturbances_m3_s=np.zeros(net.n_tanks),
     )
+
+
+def _ssqrt(dh: float) -> float:
+    """Scalar :func:`signed_sqrt`."""
+    if dh >= H_LAMINAR_M:
+        return math.sqrt(dh)
+    if dh <= -H_LAMINAR_M:
+        return -math.sqrt(-dh)
+    return dh / _SQRT_LAM
+
+
+class ScalarRhs:
+    """The same right-hand side as :meth:`TankNetwork.rhs`, on Python floats, for one input set.
+
+    The RK4 hot loop calls the right-hand side tens of times per scan on a handful of states,
+    where numpy's per-call overhead (about 50 us) dominates; plain float arithmetic on lists is
+    about ten times faster. Built once per step (inputs are held over it); a test checks it
+    against :meth:`TankNetwork.rhs` on random states and inputs.
+    """
+
+    def __init__(self, net: TankNetwork, u: PlantInputs) -> None:
+        self.n = net.n_tanks
+        self.p = net.n_pumps
+        self.inv_area = [1.0 / a for a in net.area_m2.tolist()]
+        self.hmax = net.hmax_m.tolist()
+        self.valves = [
+            (int(up), int(down), float(s * c))
+            for up, down, s, c in zip(
+                net.valve_up, net.valve_down, u.valve_openings, net.valve_conductance, strict=True
+            )
+        ]
+        self.leaks = (u.leak_openings * net.leak_conductance).tolist()
+        self.dist = u.disturbances_m3_s.tolist()
+        self.target = net.pump_target_flows(u.pump_commands).tolist()
+        self.lag = net.pump_lag_s.tolist()
+        self.pump_tank = [int(i) for i in net.pump_tank]
+
+    def __call__(self, x: list[float]) -> list[float]:
+        n, p = self.n, self.p
+        h = [v if v > 0.0 else 0.0 for v in x[:n]]
+        net = [0.0] * n
+        v_in = 0.0
+        v_out = 0.0
+        pumps = [x[n + j] if self.lag[j] > 0.0 else self.target[j] for j in range(p)]
+        for j, tank in enumerate(self.pump_tank):
+            net[tank] += pumps[j]
+            v_in += pumps[j]
+        for i in range(n):
+            d = self.dist[i]
+            if d < 0.0:
+                fade = min(max(x[i] / H_LAMINAR_M, 0.0), 1.0)
+                d *= fade
+                v_out -= d
+            else:
+                v_in += d
+            net[i] += d
+        leaked = 0.0
+        for i in range(n):
+            q = self.leaks[i] * _ssqrt(h[i])
+            net[i] -= q
+            leaked += q
+        for up, down, cs in self.valves:
+            if down == DRAIN:
+                q = cs * _ssqrt(h[up])
+                v_out += q
+            else:
+                q = cs * _ssqrt(h[up] - h[down])
+                net[down] += q
+            net[up] -= q
+        spilled = 0.0
+        dx = [0.0] * (n + p + 4)
+        for i in range(n):
+            f = net[i]
+            if x[i] >= self.hmax[i] and f > 0.0:
+                spilled += f
+                f = 0.0
+            dx[i] = f * self.inv_area[i]
+        for j in range(p):
+            if self.lag[j] > 0.0:
+                dx[n + j] = (self.target[j] - x[n + j]) / self.lag[j]
+        dx[n + p] = v_in
+        dx[n + p + 1] = v_out
+        dx[n + p + 2] = leaked
+        dx[n + p + 3] = spilled
+        return dx

@@ -15,15 +15,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from plant_sim.integrate import DEFAULT_MAX_SUBSTEP_S
 from plant_sim.plant import PlantSimulator
-from plc_emulator.program import PlcProgram, ScanInputs
+from plc_emulator.program import GainStatus, PlcProgram, ScanInputs
+from supervisor.cycle import PlcSnapshot, SupervisorCore
 from tanklab.config import SiteConfig
+from tanklab.enums import LoopMode, SupervisorMode
 
 FloatArray = NDArray[np.float64]
 
@@ -38,6 +40,12 @@ class Trace:
     commands: list[FloatArray] = field(default_factory=list)
     setpoints_m: list[FloatArray] = field(default_factory=list)
     flows_m3_s: list[FloatArray] = field(default_factory=list)
+    gains: list[FloatArray] = field(default_factory=list)
+    """Applied (Kp, Ki, Kd) per loop, (n_loops, 3) per scan."""
+    modes: list[FloatArray] = field(default_factory=list)
+    """Loop modes per scan (LoopMode values)."""
+    mpc_solve_s: list[float] = field(default_factory=list)
+    """OSQP solve time of the supervisor's MPC step after each scan [s] (NaN when none ran)."""
 
     def array(self, name: str) -> FloatArray:
         """One recorded quantity as an array (scans x items)."""
@@ -54,6 +62,15 @@ class CoSimulation:
         paper); default: the config's.
     integrator, max_substep_s : the plant's integrator (``"rk4"`` with sub-steps of at most
         ``max_substep_s`` [s], or ``"adaptive"`` solve_ivp), see :class:`PlantSimulator`.
+    supervisor_mode : run the supervisor (:class:`supervisor.cycle.SupervisorCore`) in this mode;
+        None: the PLC alone. Entering MPC at start goes through the same bumpless switch as at run
+        time (the loops are put in REMOTE at the first cycle).
+
+    The supervisor runs after every ``cycle_scans``-th PLC scan on the PLC's published values (as
+    its one Read would see them), and its writes reach the PLC before the next scan, in the order
+    the real link writes them: RemoteMV, Mode, SetGains, then the heartbeat. Setting
+    ``supervisor_alive = False`` stops the supervisor (no cycles, no heartbeat), as a killed
+    process would.
     """
 
     def __init__(
@@ -63,6 +80,7 @@ class CoSimulation:
         scan_period_s: float | None = None,
         integrator: Literal["rk4", "adaptive"] = "rk4",
         max_substep_s: float = DEFAULT_MAX_SUBSTEP_S,
+        supervisor_mode: Literal["OFF", "ADVISORY", "ADAPTIVE_PID", "MPC"] | None = None,
     ) -> None:
         if site.plc is None:
             raise ValueError(f"site {site.name!r} has no plc section")
@@ -78,6 +96,15 @@ class CoSimulation:
         self.ts_s = self.plc.ts_s
         self.trace = Trace()
         self.io_healthy = True
+        self.supervisor: SupervisorCore | None = None
+        self.supervisor_alive = True
+        self.heartbeat = 0
+        self.preview: Callable[[CoSimulation], FloatArray | None] | None = None
+        if supervisor_mode is not None:
+            if site.supervisor is None:
+                raise ValueError(f"site {site.name!r} has no supervisor section")
+            self.supervisor = SupervisorCore(site)
+            self.supervisor.request_mode(SupervisorMode[supervisor_mode])
 
     @property
     def t_s(self) -> float:
@@ -94,7 +121,31 @@ class CoSimulation:
                 np.clip(out.commands, self.plant.net.pump_cmd_min, self.plant.net.pump_cmd_max)
             )
         self._record(out.commands)
+        self._supervise(out.values)
         self.plant.advance(self.ts_s)
+
+    def _supervise(self, values: dict[str, Any]) -> None:
+        sup = self.supervisor
+        solve = float("nan")
+        if sup is not None and self.supervisor_alive and self.site.supervisor is not None:
+            if self.plc.scan_count % self.site.supervisor.cycle_scans == 0:
+                snap = PlcSnapshot.from_values(values, self.site.loop_names, self.site.tank_names)
+                preview = self.preview(self) if self.preview is not None else None
+                act = sup.cycle(snap, preview)
+                for name, mv in act.remote_mv.items():
+                    self.plc.set_remote_mv(name, mv)
+                for name, mode in act.modes.items():
+                    self.plc.set_mode(name, mode)
+                    if mode is LoopMode.REMOTE and name in act.remote_mv:
+                        self.plc.set_remote_mv(name, act.remote_mv[name])
+                for name, (kp, ki, kd) in act.gains.items():
+                    if self.plc.stage_gains(name, kp, ki, kd) is not GainStatus.STAGED:
+                        sup.push_refused()
+                if sup.result is not None and sup.cycles > 0:
+                    solve = sup.result.solve_time_s
+            self.heartbeat += 1
+            self.plc.heartbeat(self.heartbeat)
+        self.trace.mpc_solve_s.append(solve)
 
     def _record(self, commands: FloatArray) -> None:
         tr = self.trace
@@ -104,6 +155,10 @@ class CoSimulation:
         tr.commands.append(commands.copy())
         tr.setpoints_m.append(np.array([lp.sp_m for lp in self.plc.loops]))
         tr.flows_m3_s.append(self.plant.pump_flows)
+        tr.gains.append(
+            np.array([[g.kp, g.ki, g.kd] if (g := lp.applied) else [0.0, 0.0, 0.0] for lp in self.plc.loops])
+        )
+        tr.modes.append(np.array([int(lp.mode) for lp in self.plc.loops], dtype=float))
 
     def run(self, duration_s: float, before_scan: Callable[[CoSimulation], None] | None = None) -> Trace:
         """Run for ``duration_s`` of model time (whole scans); return the trace."""

@@ -219,3 +219,25 @@ def test_checkpoint_round_trip() -> None:
     assert np.array_equal(other.x, sim.x) and other.t_s == sim.t_s
     assert other.inputs.leak_openings[0] == 0.5
     assert other.balance().error == pytest.approx(sim.balance().error, abs=1e-18)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    h=st.tuples(*[st.floats(-1e-3, 0.7)] * 3),
+    q=st.tuples(st.floats(0, 1.2e-4), st.floats(0, 1.2e-4)),
+    valves=st.tuples(*[st.floats(0, 1)] * 3),
+    leaks=st.tuples(*[st.floats(0, 1)] * 3),
+    dist=st.tuples(*[st.floats(-1e-4, 1e-4)] * 3),
+    lag=st.booleans(),
+)
+def test_scalar_rhs_equals_the_numpy_rhs(h, q, valves, leaks, dist, lag) -> None:
+    from plant_sim.models import ScalarRhs
+
+    plant = SIM.model_copy(deep=True)
+    if lag:
+        plant.pumps[0].lag_s = 3.0
+    net = TankNetwork.from_config(plant)
+    u = _inputs(net, q, valves, leaks, dist)
+    x = net.initial_state(np.array(h), np.array([5e-5, 0.0]))
+    x[-4:] = [1e-3, 2e-3, 3e-4, 1e-5]
+    assert np.allclose(ScalarRhs(net, u)(x.tolist()), net.rhs(0.0, x, u), rtol=1e-12, atol=1e-18)

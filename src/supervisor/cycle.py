@@ -1,0 +1,396 @@
+"""The supervisor's cycle: from one PLC snapshot to the actions the SCADA level takes.
+
+Each cycle (every ``cycle_scans`` PLC scans) the supervisor reads, in ONE Read, the PLC's scan
+counter, model time, every loop's SP, PV, MV, mode and applied gains, and every level the PLC
+reads; so errors and MVs belong to the same scan. Then, by mode:
+
+- OFF: nothing is computed; only the heartbeat goes on.
+- ADVISORY: the MPC runs in the shadow from the measured state, with its previous input set to
+  the MV the PLC applied before this scan; the RLS learns; plans and estimates are published,
+  nothing is pushed.
+- ADAPTIVE_PID: as ADVISORY, and every push period the adapter proposes a gain set that passes
+  every guard; it is pushed through ``SetGains`` (digest 2.4 with its corrections).
+- MPC: the loops are put in REMOTE and the MPC's input, converted to each pump's unit, is
+  written to ``RemoteMV`` every cycle (the OPC UA MPC paper's architecture).
+
+Bumpless switches: entering MPC first writes ``RemoteMV`` = the applied MV and only then the
+REMOTE mode, and the MPC starts from the applied input; leaving MPC puts the loops back in AUTO,
+where the velocity-form PID continues from the applied MV. Entering ADAPTIVE_PID starts the
+adapter from the gains the PLC applies.
+
+Units: the MPC plans pump flows [m^3/s]; pump commands are converted through the plant's pump
+maps (rpm and fraction pumps included). The adapter works in the PLC's units: errors in the
+loop's error unit (m or cm) and MVs in the pump's unit, with the linear model converted to them.
+
+This module is pure: the snapshot carries the PLC's model time; no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from plant_sim.linearize import equilibrium_flows, linearize, operating_point
+from plant_sim.models import TankNetwork, default_inputs
+from supervisor.adaptation import AdaptationConfig, GainBox, LoopModel, PidGainAdapter, PidGains
+from supervisor.mpc import MpcConfig, MpcController, MpcModel, MpcResult
+from tanklab.config import SiteConfig
+from tanklab.enums import LoopMode, MpcStatus, SupervisorMode
+
+FloatArray = NDArray[np.float64]
+ERROR_SCALE = {"m": 1.0, "cm": 100.0}
+
+
+@dataclass(frozen=True)
+class PlcSnapshot:
+    """One Read of the PLC: everything a cycle needs, from the same scan.
+
+    Attributes
+    ----------
+    scan : PLC scan counter.  t_s : PLC model time [s].
+    sp_m, pv_m : (n_loops,) setpoints and PVs [m].  mv : (n_loops,) applied MVs [pump unit].
+    modes : (n_loops,) loop modes.  gains : (n_loops, 3) applied (Kp, Ki, Kd).
+    levels_m : (n_tanks,) every level the PLC read [m].  good : (n_tanks,) their quality.
+    """
+
+    scan: int
+    t_s: float
+    sp_m: FloatArray
+    pv_m: FloatArray
+    mv: FloatArray
+    modes: tuple[LoopMode, ...]
+    gains: FloatArray
+    levels_m: FloatArray
+    good: NDArray[np.bool_]
+
+    @staticmethod
+    def read_paths(loops: list[str], tanks: list[str]) -> list[str]:
+        """The PLC paths one snapshot reads, in one Read."""
+        paths = ["PLC.Status.Scan", "PLC.Status.ModelTime"]
+        paths += [f"PLC.{lp}.{item}" for lp in loops for item in _LOOP_ITEMS]
+        paths += [f"PLC.IO.LT{t[1:]}.{item}" for t in tanks for item in ("PV", "Good")]
+        return paths
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, Any], loops: list[str], tanks: list[str]) -> PlcSnapshot:
+        """Build a snapshot from PLC values keyed by path (a Read's results or PlcProgram.values())."""
+        loop_vals = np.array([[float(values[f"PLC.{lp}.{it}"]) for it in _LOOP_ITEMS] for lp in loops])
+        return cls(
+            scan=int(values["PLC.Status.Scan"]),
+            t_s=float(values["PLC.Status.ModelTime"]),
+            sp_m=loop_vals[:, 0],
+            pv_m=loop_vals[:, 1],
+            mv=loop_vals[:, 2],
+            modes=tuple(LoopMode(int(m)) for m in loop_vals[:, 3]),
+            gains=loop_vals[:, 4:7],
+            levels_m=np.array([float(values[f"PLC.IO.LT{t[1:]}.PV"]) for t in tanks]),
+            good=np.array([bool(values[f"PLC.IO.LT{t[1:]}.Good"]) for t in tanks]),
+        )
+
+
+_LOOP_ITEMS = ("SP", "PV", "MV", "Mode", "Kp", "Ki", "Kd")
+
+
+@dataclass
+class Actions:
+    """What the runtime must write to the PLC after a cycle (in this order), and publish."""
+
+    remote_mv: dict[str, float] = field(default_factory=dict)
+    modes: dict[str, LoopMode] = field(default_factory=dict)
+    gains: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+def build_mpc(site: SiteConfig) -> tuple[MpcController, TankNetwork]:
+    """The MPC of a site, linearized at its operating point (ZOH at the MPC's sample time)."""
+    if site.supervisor is None or site.plc is None:
+        raise ValueError(f"site {site.name!r} has no supervisor section")
+    spec = site.supervisor.mpc
+    net = TankNetwork.from_config(site.plant)
+    u0 = default_inputs(net, site.plant)
+    op = operating_point(net, site.plant, u0)
+    ts = spec.sample_time_s or site.plc.scan_period_s * site.supervisor.cycle_scans
+    lin = linearize(net, op.equilibrium_levels_m, op.flows_m3_s, u0, ts)
+    tanks = site.tank_names
+    n = len(tanks)
+    cz = np.zeros((len(spec.controlled), n))
+    for row, t in enumerate(spec.controlled):
+        cz[row, tanks.index(t)] = 1.0
+    filt = spec.filter_outputs or spec.controlled
+    hmax = np.array([site.plant.tank(t).height_max_m for t in spec.controlled])
+    z_max = spec.z_max_m if spec.z_max_m is not None else hmax
+    model = MpcModel(
+        A=lin.A, B=lin.B, C=np.eye(n), Cz=cz, x_op=op.equilibrium_levels_m, u_op=op.flows_m3_s, ts_s=ts
+    )
+    cfg = MpcConfig(
+        horizon=spec.horizon,
+        u_min=net.pump_target_flows(net.pump_cmd_min),
+        u_max=net.pump_target_flows(net.pump_cmd_max),
+        du_min=-spec.du_max_m3_s if spec.du_max_m3_s else -np.inf,
+        du_max=spec.du_max_m3_s if spec.du_max_m3_s else np.inf,
+        z_min=spec.z_min_m,
+        z_max=z_max,
+        Qz=np.array(spec.qz),
+        S=np.array(spec.s),
+        R=np.array(spec.r) if spec.r is not None else 0.0,
+        first_move_rate_limited=spec.first_move_rate_limited,
+        formulation=spec.formulation,
+        estimator_outputs=[tanks.index(t) for t in filt],
+        state_noise_std=spec.state_noise_m,
+        disturbance_noise_std=spec.disturbance_noise_m3_s,
+        measurement_noise_std=spec.measurement_noise_m,
+    )
+    return MpcController(model, cfg), net
+
+
+class SupervisorCore:
+    """The supervisor of a site: mode logic, shadow or direct MPC, gain adaptation.
+
+    Parameters
+    ----------
+    site : a site with ``plc`` and ``supervisor`` sections; every loop must be a PID loop for
+        ADAPTIVE_PID (the MPC and MPC mode work with any block).
+    """
+
+    def __init__(self, site: SiteConfig) -> None:
+        if site.supervisor is None or site.plc is None:
+            raise ValueError(f"site {site.name!r} has no supervisor section")
+        self.site = site
+        self.spec = site.supervisor
+        self.loops = site.plc.loops
+        self.loop_names = [lp.name for lp in self.loops]
+        self.mpc, self.net = build_mpc(site)
+        tanks = site.tank_names
+        pumps = site.pump_names
+        # Loop j drives pump self.loop_pump[j]; the MPC's inputs are all pumps in plant order.
+        self.loop_pump = [pumps.index(lp.actuator) for lp in self.loops]
+        self.loop_tank = [tanks.index("T" + lp.pv[2:]) for lp in self.loops]
+        self.controlled = [tanks.index(t) for t in self.spec.mpc.controlled]
+        # Start OFF and let the first cycle switch to the configured mode, so that a supervisor
+        # configured for MPC enters it bumplessly (RemoteMV = applied MV, then REMOTE).
+        self.mode = SupervisorMode.OFF
+        self.requested = self.spec.mode_enum
+        self.cycles = 0
+        self.last: PlcSnapshot | None = None
+        self.result: MpcResult | None = None
+        self.push_scan = -10
+        self.pushes_refused = 0
+        self._last_r: FloatArray | None = None
+        self.adapter: PidGainAdapter | None = self._build_adapter() if self._all_pid() else None
+
+    # ---- construction -------------------------------------------------------------------
+
+    def _all_pid(self) -> bool:
+        return all(lp.block == "pid" and lp.gains is not None for lp in self.loops)
+
+    def _build_adapter(self) -> PidGainAdapter:
+        """The gain adapter in the PLC's units (pump unit per loop error unit)."""
+        spec = self.spec.adaptation
+        lin_A, lin_B = self.mpc.model.A, self.mpc.model.B
+        n_l = len(self.loops)
+        pumps = [self.site.plant.pump(lp.actuator) for lp in self.loops]
+        slope = np.array([p.slope for p in pumps])
+        scale = np.array([ERROR_SCALE[lp.error_unit] for lp in self.loops])
+        B = lin_B[:, self.loop_pump] * slope  # m per pump unit
+        C = np.zeros((n_l, lin_A.shape[0]))
+        for j, t in enumerate(self.loop_tank):
+            C[j, t] = scale[j]  # error unit per m
+        u_min = np.array([p.command_min for p in pumps])
+        u_max = np.array([p.command_max for p in pumps])
+        u_op = np.array(
+            [p.command_of(q) for p, q in zip(pumps, self.mpc.model.u_op[self.loop_pump], strict=True)]
+        )
+        model = LoopModel(
+            A=lin_A,
+            B=B,
+            C=C,
+            ts_s=self.site.plc.scan_period_s if self.site.plc else 1.0,
+            u_min=u_min,
+            u_max=u_max,
+            x_op=self.mpc.model.x_op,
+            u_op=u_op,
+        )
+        fixed = PidGains.diagonal(
+            [lp.gains.kp for lp in self.loops if lp.gains],
+            [lp.gains.ki for lp in self.loops if lp.gains],
+            [lp.gains.kd for lp in self.loops if lp.gains],
+        )
+        box = None
+        if all(lp.gain_box is not None for lp in self.loops):
+            lo = np.zeros((3, n_l, n_l))
+            hi = np.zeros((3, n_l, n_l))
+            for j, lp in enumerate(self.loops):
+                assert lp.gain_box is not None
+                for g, name in enumerate(("kp", "ki", "kd")):
+                    lo[g, j, j], hi[g, j, j] = getattr(lp.gain_box, name)
+            box = GainBox(PidGains.from_stacked(lo), PidGains.from_stacked(hi))
+        cfg = AdaptationConfig(
+            memory_s=spec.memory_s,
+            trace_cap=spec.trace_cap,
+            excitation_threshold=spec.excitation_threshold,
+            error_scale=spec.error_scale_m * float(scale.max()),
+            push_period_s=spec.push_period_s,
+            min_time_s=spec.start_after_s,
+            box=box,
+            ki_min=spec.ki_min,
+            max_change_fraction=spec.max_change_fraction,
+            max_spectral_radius=spec.spectral_radius_max,
+        )
+        return PidGainAdapter(model, fixed, cfg)
+
+    # ---- requests -----------------------------------------------------------------------
+
+    def request_mode(self, mode: SupervisorMode) -> None:
+        """Switch mode at the next cycle; ADAPTIVE_PID needs every loop to be a PID loop."""
+        mode = SupervisorMode(mode)
+        if mode is SupervisorMode.ADAPTIVE_PID and self.adapter is None:
+            raise ValueError("ADAPTIVE_PID needs every loop to be a PID loop with fixed gains")
+        self.requested = mode
+
+    def push_refused(self) -> None:
+        """The PLC refused a push: resynchronise the adapter from the next snapshot."""
+        self.pushes_refused += 1
+        self.push_scan = -10
+
+    # ---- the cycle ----------------------------------------------------------------------
+
+    def flows_of(self, mv: FloatArray) -> FloatArray:
+        """Pump flows [m^3/s] for the loops' MVs (pumps without a loop: operating flow)."""
+        q = self.mpc.model.u_op.copy()
+        for j, p in enumerate(self.loop_pump):
+            q[p] = self.site.plant.pumps[p].flow_of(float(mv[j]))
+        return q
+
+    def commands_of(self, flows: FloatArray) -> FloatArray:
+        """Loop MVs [pump unit] for pump flows [m^3/s]."""
+        return np.array([self.site.plant.pumps[p].command_of(float(flows[p])) for p in self.loop_pump])
+
+    def cycle(self, snap: PlcSnapshot, r_preview: FloatArray | None = None) -> Actions:
+        """Run one cycle on a new PLC snapshot; return the actions to write and the values."""
+        act = Actions()
+        prev = self.last
+        self._switch_mode(snap, act)
+        self.cycles += 1
+        if self.mode is not SupervisorMode.OFF:
+            self._compute(snap, prev, act, r_preview)
+        self.last = snap
+        act.values.update(self.values())
+        return act
+
+    def _switch_mode(self, snap: PlcSnapshot, act: Actions) -> None:
+        if self.requested is self.mode:
+            return
+        if self.mode is SupervisorMode.MPC:
+            for name in self.loop_names:
+                act.modes[name] = LoopMode.AUTO
+        if self.requested is SupervisorMode.MPC:
+            for j, name in enumerate(self.loop_names):
+                act.remote_mv[name] = float(snap.mv[j])
+                act.modes[name] = LoopMode.REMOTE
+        if self.requested is SupervisorMode.ADAPTIVE_PID and self.adapter is not None:
+            self.adapter.set_applied(self._applied(snap))
+        self.mode = self.requested
+
+    def _applied(self, snap: PlcSnapshot) -> PidGains:
+        return PidGains.diagonal(snap.gains[:, 0], snap.gains[:, 1], snap.gains[:, 2])
+
+    def _reference(self, snap: PlcSnapshot) -> FloatArray:
+        r = self.mpc.model.x_op[self.controlled].copy()
+        for row, tank in enumerate(self.controlled):
+            if tank in self.loop_tank:
+                r[row] = snap.sp_m[self.loop_tank.index(tank)]
+        return r
+
+    def _compute(
+        self, snap: PlcSnapshot, prev: PlcSnapshot | None, act: Actions, preview: FloatArray | None
+    ) -> None:
+        if not bool(np.all(snap.good)) or not np.all(np.isfinite(snap.levels_m)):
+            return  # no MPC step on bad measurements: hold (the PLC keeps its last RemoteMV)
+        direct = self.mode is SupervisorMode.MPC
+        # Shadow: the MPC's previous input is the MV applied before this scan; direct: the MV now.
+        mv_prev = snap.mv if direct or prev is None or prev.scan != snap.scan - 1 else prev.mv
+        r = self._reference(snap) if preview is None else preview
+        if self.spec.mpc.relinearize:
+            self._relinearize(r if r.ndim == 1 else r[0])
+        res = self.mpc.step(snap.levels_m, r, self.flows_of(mv_prev))
+        self.result = res
+        u_cmd = self.commands_of(res.u)
+        if direct:
+            for j, name in enumerate(self.loop_names):
+                act.remote_mv.setdefault(name, float(u_cmd[j]))
+            return
+        if self.adapter is None:
+            return
+        scale = np.array([ERROR_SCALE[lp.error_unit] for lp in self.loops])
+        if self.mode is SupervisorMode.ADAPTIVE_PID and snap.scan > self.push_scan + 1:
+            # Resynchronise with what the PLC really applies (fallbacks, refusals, restarts).
+            applied = self._applied(snap)
+            if not applied.allclose(self.adapter.applied, rtol=1e-9):
+                self.adapter.set_applied(applied)
+        self.adapter.observe(
+            scan=snap.scan,
+            t_s=snap.t_s,
+            sp=snap.sp_m * scale,
+            pv=snap.pv_m * scale,
+            mv=snap.mv,
+            u_mpc=u_cmd,
+            x=snap.levels_m,
+        )
+        if self.mode is SupervisorMode.ADAPTIVE_PID:
+            decision = self.adapter.propose(snap.t_s)
+            if decision is not None and decision.accepted and decision.changed:
+                g = decision.candidate
+                for j, name in enumerate(self.loop_names):
+                    act.gains[name] = (float(g.kp[j, j]), float(g.ki[j, j]), float(g.kd[j, j]))
+                self.push_scan = snap.scan
+
+    def _relinearize(self, r: FloatArray) -> None:
+        """Gain scheduling: re-linearize at the equilibrium holding the current references."""
+        if self._last_r is not None and np.allclose(r, self._last_r, atol=1e-6):
+            return
+        levels = self.mpc.model.x_op.copy()
+        levels[self.controlled] = r
+        u0 = default_inputs(self.net, self.site.plant)
+        try:
+            flows, eq = equilibrium_flows(self.net, levels, u0)
+        except ValueError:
+            return  # no equilibrium for this reference (e.g. above what the pumps can hold): keep
+        lin = linearize(self.net, eq, flows, u0, self.mpc.model.ts_s)
+        self.mpc.update_model(lin.A, lin.B, x_op=eq, u_op=flows)
+        self._last_r = np.array(r, dtype=float)
+
+    # ---- publishing ---------------------------------------------------------------------
+
+    def values(self) -> dict[str, Any]:
+        """The supervisor's node values now, keyed by tag path."""
+        v: dict[str, Any] = {"Supervisor.Mode": int(self.mode), "Supervisor.Cycle": self.cycles}
+        res = self.result
+        if res is not None:
+            v["Supervisor.MPC.SolveTime"] = res.solve_time_s
+            v["Supervisor.MPC.Iterations"] = res.iterations
+            v["Supervisor.MPC.Status"] = int(res.status)
+            v["Supervisor.MPC.Failures"] = res.failures
+            v["Supervisor.MPC.PlannedMV"] = [float(x) for x in res.planned_u.ravel()]
+            v["Supervisor.MPC.PredictedPV"] = [float(x) for x in res.predicted_z.ravel()]
+            v["Supervisor.Estimator.Disturbance"] = [float(x) for x in res.disturbance]
+        else:
+            v["Supervisor.MPC.Status"] = int(MpcStatus.NOT_RUN)
+        if self.adapter is not None:
+            d = self.adapter.diagnostics()
+            reason = d.last_reject_reason.value if d.last_reject_reason else ""
+            for j, name in enumerate(self.loop_names):
+                p = f"Supervisor.RLS.{name}"
+                pump = d.pumps[j]
+                v[f"{p}.Theta"] = [float(x) for x in pump.theta]
+                v[f"{p}.CovarianceTrace"] = (
+                    float(pump.covariance_trace) if math.isfinite(pump.covariance_trace) else 0.0
+                )
+                v[f"{p}.Accepted"] = d.accepted_pushes
+                v[f"{p}.Rejected"] = d.rejected_pushes + self.pushes_refused
+                v[f"{p}.LastReason"] = reason
+        return v

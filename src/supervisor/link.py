@@ -1,0 +1,102 @@
+"""The supervisor's link to the PLC: one Read per cycle, ordered writes, SetGains calls.
+
+``snapshot`` reads, in one Read, the scan counter, the model time, every loop's SP, PV, MV,
+mode and applied gains, and every level the PLC reads with its quality, so that errors and MVs
+belong to the same scan (architecture: RLS data). ``apply`` writes what a cycle decided in a safe
+order: RemoteMV before Mode (entering REMOTE never applies a stale value), then SetGains, and the
+heartbeat last (in lock-step the heartbeat is the PLC's permission to scan again).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from asyncua import ua
+
+from supervisor.cycle import Actions, PlcSnapshot
+from tanklab.config import SiteConfig
+from tanklab.errors import LinkError
+from tanklab.tags import plc_tags, tags_by_path
+from tanklab.ua import Link
+
+log = logging.getLogger(__name__)
+
+
+class PlcLink:
+    """The supervisor's OPC UA client of the PLC."""
+
+    def __init__(self, site: SiteConfig, url: str, *, timeout_s: float = 2.0) -> None:
+        self.site = site
+        self.loops = site.loop_names
+        self.tanks = site.tank_names
+        tags = tags_by_path(plc_tags(site))
+        self.read_paths = PlcSnapshot.read_paths(self.loops, self.tanks)
+        writes = ["PLC.Supervisor.Heartbeat"]
+        writes += [f"PLC.{lp}.{item}" for lp in self.loops for item in ("RemoteMV", "Mode", "SetGains")]
+        self.link = Link(url, {p: tags[p] for p in self.read_paths + writes}, name="plc", timeout_s=timeout_s)
+
+    @property
+    def healthy(self) -> bool:
+        return self.link.healthy
+
+    async def ensure(self) -> bool:
+        return await self.link.ensure()
+
+    async def snapshot(self) -> PlcSnapshot | None:
+        """One Read of everything a cycle needs; None when the PLC cannot be read."""
+        if not await self.link.ensure():
+            return None
+        try:
+            dvs = await self.link.read(self.read_paths)
+        except LinkError as e:
+            log.warning("%s", e)
+            return None
+        if any(dv.StatusCode is not None and not dv.StatusCode.is_good() for dv in dvs):
+            return None
+        values: dict[str, Any] = {}
+        for path, dv in zip(self.read_paths, dvs, strict=True):
+            if dv.Value is None or dv.Value.Value is None:
+                return None
+            values[path] = dv.Value.Value
+        return PlcSnapshot.from_values(values, self.loops, self.tanks)
+
+    async def apply(self, actions: Actions) -> list[str]:
+        """Write a cycle's decisions; return the loops whose gain push the PLC refused.
+
+        Raises
+        ------
+        LinkError
+            When the PLC cannot be reached (nothing more is written).
+        """
+        if actions.remote_mv:
+            await self._write({f"PLC.{lp}.RemoteMV": mv for lp, mv in actions.remote_mv.items()})
+        if actions.modes:
+            await self._write({f"PLC.{lp}.Mode": int(m) for lp, m in actions.modes.items()})
+        refused = []
+        for lp, (kp, ki, kd) in actions.gains.items():
+            try:
+                await self.link.call(
+                    f"PLC.{lp}.SetGains",
+                    ua.Variant(kp, ua.VariantType.Double),
+                    ua.Variant(ki, ua.VariantType.Double),
+                    ua.Variant(kd, ua.VariantType.Double),
+                )
+                log.info("pushed gains to %s: Kp %.4g Ki %.4g Kd %.4g", lp, kp, ki, kd)
+            except ua.UaStatusCodeError as e:
+                log.warning("PLC refused gains for %s: %s", lp, type(e).__name__)
+                refused.append(lp)
+        return refused
+
+    async def heartbeat(self, value: int) -> None:
+        """Write the heartbeat (UInt32, wraps)."""
+        await self._write({"PLC.Supervisor.Heartbeat": value % 2**32})
+
+    async def _write(self, values: dict[str, object]) -> None:
+        results = await self.link.write(values)
+        for path, status in zip(values, results, strict=True):
+            if not status.is_good():
+                log.warning("PLC refused %s = %r: %s", path, values[path], status.name)
+
+    async def close(self) -> None:
+        await self.link.close()

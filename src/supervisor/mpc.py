@@ -1,0 +1,1257 @@
+r"""Constrained offset-free linear MPC on OSQP (pure core of the supervisor's MPC mode).
+
+Model
+-----
+Discrete linear model in deviations around an operating point (x_op levels [m], u_op pump flows
+[m^3/s]) that must be an equilibrium of the model (seeds digest 1.1)::
+
+    dx(k+1) = A dx(k) + B du(k) + Bd eta          dx = x - x_op  (n,) [m]
+    y(k)    = C x(k)   (measured, (ny,) [m])      du = u - u_op  (m,) [m^3/s]
+    z(k)    = Cz x(k)  (controlled, (nz,) [m])    eta: integrating disturbance, held constant
+
+The public API takes and returns absolute values (levels m, flows m^3/s); deviations are internal.
+
+Optimal control problem (digest 2.5, its slips corrected), solved every sample::
+
+    min  1/2 sum_{k=1..Np} ||z(k) - r(k)||^2_Qz + 1/2 sum_{k=0..Np-1} ||u(k) - u(k-1)||^2_S
+       + 1/2 sum_{k=0..Np-1} ||u(k) - u_ss||^2_R
+       + sum_{k=1..Np} sum_i ( 1/2 rho_q,i eps_i(k)^2 + rho_l,i eps_i(k) )
+    s.t. u_min <= u(k) <= u_max                               k = 0..Np-1
+         du_min <= u(k) - u(k-1) <= du_max                    k = 0..Np-1  (k = 1..Np-1 paper-literal)
+         z_min - eps(k) <= z(k) <= z_max + eps(k),  eps(k) >= 0   k = 1..Np
+         x(0) = x(k|k) estimated, eta = eta(k|k) estimated, held constant over the horizon
+
+u(-1) is the previously APPLIED input. R = 0 by default (the 2.5 form); with R > 0 (the 2.4
+variant) u_ss is the steady-state input of the target problem below, so R does not cost offset.
+The output bounds are soft: eps are slack variables with an exact (linear) penalty rho_l larger than
+the multipliers of the hard problem, plus a quadratic term, so the QP is always feasible and its
+solution equals the hard-bounded one whenever that exists (and rho_l exceeds its multipliers).
+Input bounds are hard.
+
+Offset-free design
+------------------
+Integrating input disturbances (Bd = B by default, Ad = I, C_eta = 0) estimated by the steady-state
+Kalman filter of ``supervisor.estimator`` from the measured outputs selected by
+``MpcConfig.estimator_outputs``. The prediction uses the augmented model with eta held constant and
+penalises z - r directly. At a closed-loop steady state with n_eta = number of filtered outputs the
+innovation is zero, so the model predicts the plant, and a constant plan with z != r is not optimal
+(moving u lowers the tracking cost at first order, the move cost only at second order): the
+offset is zero. The observability condition rank [[I - A, -Bd], [C, 0]] = n + n_eta is checked at
+construction. For R > 0, u_ss comes from the offset-free target problem (least-squares solution of
+[[I - A, -B], [Cz, 0]] [x_s; u_s] = [Bd eta; r(Np)] in scaled deviations).
+
+Scaling
+-------
+OSQP is given the problem in dimensionless variables, fractions of their ranges: with unscaled flows
+of 1e-4 m^3/s next to levels of 0.4 m its absolute tolerances exceed the whole input range and its
+iterations stall (measured in docs/mpc.md)::
+
+    x~ = (x - x_op) / s_x,  u~ = (u - u_op) / s_u,  z~ = (z - Cz x_op) / s_z,  eps~ = eps / s_z
+    s_u = u_max - u_min;  s_z = z_max - z_min where finite, else max_j |Cz_ij| s_x,j;
+    s_x = MpcConfig.x_scale (default: the largest finite output range, e.g. Hmax, for every state)
+
+    A~ = Dx^-1 A Dx,  B~ = Dx^-1 B Du,  Cz~ = Dz^-1 Cz Dx,  w~ = Dx^-1 Bd eta
+    Qz~ = Dz Qz Dz / c,  S~ = Du S Du / c,  R~ = Du R Du / c,
+    rho_q~ = rho_q s_z^2 / c,  rho_l~ = rho_l s_z / c,
+    c = largest diagonal entry of Dz Qz Dz, Du S Du, Du R Du
+
+so the scaled cost is the SI cost divided by c: the same minimiser, and the solver's absolute
+tolerances refer to fractions of the ranges. Weights are given in SI units (Qz [1/m^2], S and R
+[1/(m^3/s)^2], rho_q [1/m^2], rho_l [1/m]); the default slack weights are rho_l~ = max(10, Np / 2)
+and rho_q~ = 1 in scaled units: about ten times the largest output-bound multiplier measured on
+the three-tank model (1.0, 1.5 and 6.9 at Np = 10, 40, 160), and no larger, because OSQP scales
+the cost by max |q| and a huge rho_l~ stalls ADMM. The scaled QP, with the stacked input
+U~ = [u~(0); ...; u~(Np-1)]::
+
+    min 1/2 v' P v + q' v   s.t.  l <= Aqp v <= u
+
+Condensed (v = [U~; eps~]): Z~ = Phi x~0 + Psi w~ + Gamma U~ with Phi = (I (x) Cz~) [A~; ...; A~^Np],
+Psi = (I (x) Cz~) [I; I + A~; ...; sum_{i<Np} A~^i], Gamma lower block-triangular with blocks
+Cz~ A~^(k-1-j) B~. P = blkdiag(Gamma' Qbar Gamma + D' Sbar D + Rbar, diag(rho_q~)),
+q = [Gamma' Qbar (f - R~) - E1 S~ u~(-1) - Rbar U~ss; rho_l~] with f = Phi x~0 + Psi w~, D the
+block bidiagonal difference matrix (I on the diagonal, -I below) and E1 the first block column.
+Rows: U~ in [u~min, u~max]; D U~ in [du~min, du~max] shifted by u~(-1) in the first row;
+Gamma U~ + eps~ >= z~min - f; Gamma U~ - eps~ <= z~max - f; eps~ >= 0.
+
+Sparse (v = [X~; U~; eps~], X~ = [x~(1); ...; x~(Np)]): the dynamics are equality rows
+x~(k+1) - A~ x~(k) - B~ u~(k) = w~ (first row: = A~ x~0 + w~); the cost and output rows act on
+Cz~ x~(k) directly, so P is block diagonal and only the first dynamics row and q depend on the step.
+
+``formulation="auto"`` picks condensed for Np < ``SPARSE_FROM_HORIZON`` and sparse from there on
+(threshold measured on the development machine, docs/mpc.md). Both give the same solution.
+
+Solver use
+----------
+The OSQP problem is set up once in the constructor; ``step`` only updates q, l and u (and the
+tolerance settings, below) and warm-starts from the previous primal and dual solution shifted by
+one sample. ``update_model`` replaces A and B (and optionally the operating point) through OSQP's
+matrix-value update on a fixed sparsity pattern (every structurally possible entry is stored).
+
+Tolerance ladder. With the papers' tuning (S = I in SI units is ~4e-8 of the tracking weight after
+scaling) the QP is nearly flat along "move timing" directions, so ADMM's residual test at a loose
+tolerance accepts first moves that differ from the optimum by ~1 % of the input range, and active
+output bounds converge slowly. Each step therefore solves with eps_abs = eps_rel = 1e-4, polishes
+(an exact solve on the identified active set: the optimum whenever it succeeds), and only if the
+polish fails continues the same ADMM iterates at 1e-5 and then 1e-6 (``MpcConfig.tolerances``),
+within one iteration budget ``max_iter``. The last rung's solution is accepted polished or not.
+
+The status is checked every step: a polished solution or one at the last rung -> SOLVED; a
+looser rung's solution when a tighter one ran out of iterations, or OSQP's "solved inaccurate" ->
+INACCURATE (the plan is used); no solution or a non-finite one -> HELD: the last safe plan shifted
+by one sample is used (before any plan exists, u(-1) is held), and the failure is counted. Every
+applied move and every returned plan is projected onto u_min <= u <= u_max and the rate limits
+(relative to the applied u(-1); a u(-1) outside the input box is first clipped to where the rate
+window meets it, the physical bounds win), so bounds hold exactly even at solver tolerance and on
+the held path; NaN is never returned. Solve time is OSQP's own update + solve + polish time summed
+over the rungs of the step [s]; OSQP's adaptive rho runs on an iteration count, so results are
+deterministic.
+
+The module is pure: no clock, no I/O, no logging.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+from numpy.typing import ArrayLike, NDArray
+
+from supervisor.estimator import AugmentedKalmanFilter
+from tanklab.enums import MpcStatus
+
+__all__ = ["SPARSE_FROM_HORIZON", "MpcConfig", "MpcController", "MpcModel", "MpcResult"]
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+#: Horizon from which ``formulation="auto"`` uses the sparse QP (measured, docs/mpc.md).
+SPARSE_FROM_HORIZON = 20
+
+# OSQP status values (osqp.SolverStatus; the names are stable across 1.x).
+_OSQP_SOLVED = 1
+_OSQP_SOLVED_INACCURATE = 2
+
+# Default slack weights in scaled, normalised units (see the module docstring and docs/mpc.md):
+# rho_l~ = max(_SLACK_LINEAR_MIN, _SLACK_LINEAR_PER_STEP * Np) exceeds the output-bound multipliers
+# measured on the three-tank model (at most 1.0 / 1.5 / 6.9 at Np = 10 / 40 / 160) about tenfold;
+# far larger values make OSQP's cost scaling (driven by max |q|) stall the ADMM iterations.
+_SLACK_LINEAR_MIN = 10.0
+_SLACK_LINEAR_PER_STEP = 0.5
+_SLACK_QUADRATIC = 1.0
+
+
+# ----------------------------------------------------------------------------------------------
+# validation helpers
+# ----------------------------------------------------------------------------------------------
+def _as_float(value: ArrayLike, name: str) -> FloatArray:
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be numeric, got {type(value).__name__}")
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"{name} must be numeric, got {type(value).__name__}") from e
+
+
+def _matrix(value: ArrayLike, name: str, rows: int | None, cols: int | None) -> FloatArray:
+    arr = _as_float(value, name)
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D array, got shape {arr.shape}")
+    if (rows is not None and arr.shape[0] != rows) or (cols is not None and arr.shape[1] != cols):
+        raise ValueError(f"{name} must have shape ({rows}, {cols}), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    return arr
+
+
+def _vector(value: ArrayLike, size: int, name: str, *, allow_inf: bool = False) -> FloatArray:
+    """Scalar (broadcast) or 1-D of length ``size``; NaN never allowed, +-inf only if ``allow_inf``."""
+    arr = _as_float(value, name)
+    if arr.ndim == 0:
+        arr = np.full(size, float(arr))
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must be a scalar or have shape ({size},), got {arr.shape}")
+    if np.any(np.isnan(arr)) or (not allow_inf and not np.all(np.isfinite(arr))):
+        raise ValueError(f"{name} must be {'non-NaN' if allow_inf else 'finite'}")
+    return arr
+
+
+def _weight(value: ArrayLike, size: int, name: str) -> FloatArray:
+    """A symmetric positive semidefinite weight: scalar, diagonal (size,) or full (size, size)."""
+    arr = _as_float(value, name)
+    if arr.ndim <= 1:
+        W = np.diag(_vector(arr, size, name))
+    else:
+        W = _matrix(arr, name, size, size)
+    if not np.allclose(W, W.T, rtol=1e-12, atol=0.0):
+        raise ValueError(f"{name} must be symmetric")
+    W = 0.5 * (W + W.T)
+    if size and np.min(np.linalg.eigvalsh(W)) < -1e-12 * max(1.0, float(np.max(np.abs(W)))):
+        raise ValueError(f"{name} must be positive semidefinite")
+    return W
+
+
+def _readonly(a: FloatArray) -> FloatArray:
+    a.flags.writeable = False
+    return a
+
+
+def _csc(values: FloatArray, mask: BoolArray) -> sp.csc_matrix:
+    """CSC matrix holding ``values`` on every True entry of ``mask`` (explicit zeros kept).
+
+    The data order (column-major over ``mask``) is what OSQP's ``update(Px=..., Ax=...)`` expects,
+    so a fixed mask gives a fixed sparsity pattern across model updates.
+    """
+    cols, rows = np.nonzero(mask.T)  # transposed: column-major order, rows sorted in each column
+    indptr = np.zeros(mask.shape[1] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cols, minlength=mask.shape[1]), out=indptr[1:])
+    return sp.csc_matrix((values[rows, cols], rows, indptr), shape=mask.shape)
+
+
+def _shift_index(offset: int, blocks: int, size: int) -> NDArray[np.int64]:
+    """Indices that shift ``blocks`` consecutive blocks of ``size`` one block forward (last repeated)."""
+    if blocks == 0 or size == 0:
+        return np.zeros(0, dtype=np.int64)
+    idx = np.concatenate([np.arange(size, blocks * size), np.arange((blocks - 1) * size, blocks * size)])
+    return (idx + offset).astype(np.int64)
+
+
+# ----------------------------------------------------------------------------------------------
+# public data types
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MpcModel:
+    """Discrete linear model of the plant around an equilibrium.
+
+    Attributes
+    ----------
+    A : ndarray, shape (n, n)
+        Discrete state matrix (ZOH at ``ts_s``).
+    B : ndarray, shape (n, m)
+        Discrete input matrix [m per m^3/s].
+    C : ndarray, shape (ny, n)
+        Measured outputs y = C x [m].
+    Cz : ndarray, shape (nz, n)
+        Controlled outputs z = Cz x [m].
+    x_op : ndarray, shape (n,)
+        Operating-point state (levels) [m]; with ``u_op`` an equilibrium of the model.
+    u_op : ndarray, shape (m,)
+        Operating-point inputs (pump flows) [m^3/s].
+    ts_s : float
+        Sample time [s] (informational: the matrices are already discrete).
+    """
+
+    A: FloatArray
+    B: FloatArray
+    C: FloatArray
+    Cz: FloatArray
+    x_op: FloatArray
+    u_op: FloatArray
+    ts_s: float
+
+    def __post_init__(self) -> None:
+        A = _matrix(self.A, "A", None, None)
+        n = A.shape[0]
+        if A.shape != (n, n) or n == 0:
+            raise ValueError(f"A must be square and non-empty, got shape {A.shape}")
+        B = _matrix(self.B, "B", n, None)
+        if B.shape[1] == 0:
+            raise ValueError("B must have at least one column (input)")
+        C = _matrix(self.C, "C", None, n)
+        Cz = _matrix(self.Cz, "Cz", None, n)
+        if C.shape[0] == 0 or Cz.shape[0] == 0:
+            raise ValueError("C and Cz must have at least one row")
+        x_op = _vector(self.x_op, n, "x_op")
+        u_op = _vector(self.u_op, B.shape[1], "u_op")
+        if isinstance(self.ts_s, bool) or not isinstance(self.ts_s, (int, float, np.floating, np.integer)):
+            raise TypeError(f"ts_s must be a real number, got {type(self.ts_s).__name__}")
+        if not (math.isfinite(float(self.ts_s)) and float(self.ts_s) > 0.0):
+            raise ValueError(f"ts_s must be finite and > 0, got {self.ts_s}")
+        for name, val in (("A", A), ("B", B), ("C", C), ("Cz", Cz), ("x_op", x_op), ("u_op", u_op)):
+            object.__setattr__(self, name, _readonly(val))
+        object.__setattr__(self, "ts_s", float(self.ts_s))
+
+    @property
+    def n_states(self) -> int:
+        """n."""
+        return int(self.A.shape[0])
+
+    @property
+    def n_inputs(self) -> int:
+        """m."""
+        return int(self.B.shape[1])
+
+    @property
+    def n_measured(self) -> int:
+        """ny."""
+        return int(self.C.shape[0])
+
+    @property
+    def n_controlled(self) -> int:
+        """nz."""
+        return int(self.Cz.shape[0])
+
+
+Formulation = Literal["auto", "condensed", "sparse"]
+InputTarget = Literal["steady_state", "operating_point"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class MpcConfig:
+    """Tuning, bounds, estimator and solver settings of :class:`MpcController` (SI units).
+
+    Vector fields accept a scalar (broadcast) or an array of the stated length; weights accept a
+    scalar, a diagonal (length) or a full symmetric PSD matrix.
+
+    Attributes
+    ----------
+    horizon : int
+        Prediction and control horizon Np [samples], >= 1.
+    u_min, u_max : array_like, (m,)
+        Hard absolute input bounds [m^3/s]; finite, u_min < u_max (they also set the input scaling).
+    du_min, du_max : array_like, (m,)
+        Rate bounds per sample [m^3/s]; du_min <= 0 <= du_max, du_min < du_max; +-inf allowed.
+    z_min, z_max : array_like, (nz,)
+        Soft absolute output bounds [m]; +-inf allowed (no output rows if all are infinite).
+    Qz : array_like
+        Tracking weight [1/m^2], (nz,) or (nz, nz). Default 1 (the OPC UA MPC paper: Qz = I).
+    S : array_like
+        Move weight [1/(m^3/s)^2], (m,) or (m, m). Default 1 (the paper: S = I).
+    R : array_like
+        Input weight on u - u_ss [1/(m^3/s)^2]. Default 0.
+    first_move_rate_limited : bool
+        True (default): the rate bound applies to u(0) - u(-1) too. False: paper-literal, only to
+        the Np - 1 moves inside the plan (the applied move is free).
+    formulation : {"auto", "condensed", "sparse"}
+        QP form; "auto" uses sparse from ``SPARSE_FROM_HORIZON`` on.
+    x_scale : array_like or None
+        State scale s_x, (n,) [state units]. None: the largest finite z range for every state,
+        or 1 if no z bound is finite.
+    slack_linear, slack_quadratic : array_like or None
+        Output-slack penalties rho_l [1/m] and rho_q [1/m^2], (nz,). None: max(10, Np / 2) and 1 in
+        scaled units (converted as in the module docstring; see ``MpcController.slack_weights``).
+    input_target : {"steady_state", "operating_point"}
+        u_ss in the R term: the offset-free steady-state target (default) or u_op (the 2.4 paper's
+        literal deviation form, which leaves an offset under disturbances when R > 0).
+    disturbance_matrix : array_like or None
+        Bd, (n, n_eta). None: B (input disturbances).
+    estimator_outputs : sequence of int or None
+        Indices of the rows of C fed to the filter. None: all.
+    state_noise_std, disturbance_noise_std, measurement_noise_std : array_like
+        Filter standard deviations per sample: 1e-4 m, 1e-6 (eta units), 1e-3 m.
+    tolerances : tuple of float
+        The tolerance ladder: OSQP eps_abs = eps_rel per rung, scaled units, strictly decreasing.
+        Default (1e-4, 1e-5, 1e-6): meets the accuracy guard (closed-loop IAE within 1 % of an
+        interior-point reference; measured <= 0.09 %, docs/mpc.md).
+    polish : bool
+        OSQP solution polishing at every rung. Default True. False: one rung at the last tolerance.
+    max_iter : int
+        OSQP iteration budget per step, shared by the rungs. Default 10000.
+    check_termination : int
+        OSQP checks convergence every this many iterations. Default 5.
+    """
+
+    horizon: int
+    u_min: ArrayLike
+    u_max: ArrayLike
+    du_min: ArrayLike = -np.inf
+    du_max: ArrayLike = np.inf
+    z_min: ArrayLike = -np.inf
+    z_max: ArrayLike = np.inf
+    Qz: ArrayLike = 1.0
+    S: ArrayLike = 1.0
+    R: ArrayLike = 0.0
+    first_move_rate_limited: bool = True
+    formulation: Formulation = "auto"
+    x_scale: ArrayLike | None = None
+    slack_linear: ArrayLike | None = None
+    slack_quadratic: ArrayLike | None = None
+    input_target: InputTarget = "steady_state"
+    disturbance_matrix: ArrayLike | None = None
+    estimator_outputs: Sequence[int] | None = None
+    state_noise_std: ArrayLike = 1e-4
+    disturbance_noise_std: ArrayLike = 1e-6
+    measurement_noise_std: ArrayLike = 1e-3
+    tolerances: tuple[float, ...] = (1e-4, 1e-5, 1e-6)
+    polish: bool = True
+    max_iter: int = 10000
+    check_termination: int = 5
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "max_iter", "check_termination"):
+            val = getattr(self, name)
+            if isinstance(val, bool) or not isinstance(val, (int, np.integer)):
+                raise TypeError(f"{name} must be an int, got {type(val).__name__}")
+            if val < 1:
+                raise ValueError(f"{name} must be >= 1, got {val}")
+        for name in ("first_move_rate_limited", "polish"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name} must be a bool")
+        if self.formulation not in ("auto", "condensed", "sparse"):
+            raise ValueError(f"formulation must be 'auto', 'condensed' or 'sparse', got {self.formulation!r}")
+        if self.input_target not in ("steady_state", "operating_point"):
+            raise ValueError(
+                f"input_target must be 'steady_state' or 'operating_point', got {self.input_target!r}"
+            )
+        tol = self.tolerances
+        if not isinstance(tol, tuple) or not tol:
+            raise TypeError("tolerances must be a non-empty tuple of floats")
+        for val in tol:
+            if isinstance(val, bool) or not isinstance(val, (int, float, np.floating)):
+                raise TypeError(f"tolerances must hold floats, got {type(val).__name__}")
+            if not (math.isfinite(val) and val > 0.0):
+                raise ValueError(f"tolerances must be finite and > 0, got {val}")
+        if any(b >= a for a, b in itertools.pairwise(tol)):
+            raise ValueError(f"tolerances must be strictly decreasing, got {tol}")
+
+
+@dataclass(frozen=True)
+class MpcResult:
+    """Outcome and diagnostics of one MPC step (absolute SI values; arrays read-only).
+
+    Attributes
+    ----------
+    u : ndarray, shape (m,)
+        Input to apply now [m^3/s], within the input and rate bounds.
+    status : MpcStatus
+        SOLVED, INACCURATE (plan used) or HELD (solver failed: shifted previous plan used).
+    osqp_status : str
+        OSQP's status string for this step.
+    iterations : int
+        ADMM iterations of this step.
+    solve_time_s : float
+        OSQP-reported update + solve + polish time of this step [s].
+    planned_u : ndarray, shape (Np, m)
+        Planned inputs u(0..Np-1) [m^3/s]; ``planned_u[0] == u``.
+    predicted_z : ndarray, shape (Np, nz)
+        Controlled outputs z(1..Np) predicted for the plan [m].
+    disturbance : ndarray, shape (n_eta,)
+        Disturbance estimate used [eta units; m^3/s for Bd = B].
+    state : ndarray, shape (n,)
+        State estimate x(k|k) used [m].
+    objective : float
+        SI cost of the returned plan (all terms, constants included).
+    max_output_violation : float
+        Largest predicted violation of the output bounds over the plan [m] (0 if none).
+    failures : int
+        Total HELD steps since construction or :meth:`MpcController.reset`.
+    consecutive_failures : int
+        HELD steps in a row up to and including this one.
+    inaccurate : int
+        Total INACCURATE steps since construction or reset.
+    """
+
+    u: FloatArray
+    status: MpcStatus
+    osqp_status: str
+    iterations: int
+    solve_time_s: float
+    planned_u: FloatArray
+    predicted_z: FloatArray
+    disturbance: FloatArray
+    state: FloatArray
+    objective: float
+    max_output_violation: float
+    failures: int
+    consecutive_failures: int
+    inaccurate: int
+
+
+@dataclass
+class _OsqpOutcome:
+    """What the tolerance ladder produced in one step (scaled QP variables)."""
+
+    status: str = "not run"
+    iterations: int = 0
+    time_s: float = 0.0
+    x: FloatArray | None = None
+    y: FloatArray | None = None
+    accurate: bool = False
+    last_x: FloatArray | None = None
+    last_y: FloatArray | None = None
+
+
+# ----------------------------------------------------------------------------------------------
+# the controller
+# ----------------------------------------------------------------------------------------------
+class MpcController:
+    """Offset-free constrained MPC with a steady-state Kalman filter (see the module docstring).
+
+    Parameters
+    ----------
+    model : MpcModel
+        Discrete model and operating point.
+    config : MpcConfig
+        Horizon, weights, bounds, estimator and solver settings.
+
+    Raises
+    ------
+    ValueError
+        Inconsistent shapes or bounds, a weight that is not PSD, all weights zero, an
+        unobservable disturbance model, or an OSQP setup error.
+    TypeError
+        A non-numeric argument.
+    """
+
+    def __init__(self, model: MpcModel, config: MpcConfig) -> None:
+        if not isinstance(model, MpcModel):
+            raise TypeError(f"model must be an MpcModel, got {type(model).__name__}")
+        if not isinstance(config, MpcConfig):
+            raise TypeError(f"config must be an MpcConfig, got {type(config).__name__}")
+        self._model = model
+        self._config = config
+        n, m, nz, ny = model.n_states, model.n_inputs, model.n_controlled, model.n_measured
+        N = config.horizon
+        self._n, self._m, self._nz, self._N = n, m, nz, N
+
+        # -- bounds ------------------------------------------------------------------------------
+        self._u_min = _vector(config.u_min, m, "u_min")
+        self._u_max = _vector(config.u_max, m, "u_max")
+        if np.any(self._u_min >= self._u_max):
+            raise ValueError("u_min must be < u_max element-wise")
+        self._du_min = _vector(config.du_min, m, "du_min", allow_inf=True)
+        self._du_max = _vector(config.du_max, m, "du_max", allow_inf=True)
+        if np.any(self._du_min > 0.0) or np.any(self._du_max < 0.0) or np.any(self._du_min >= self._du_max):
+            raise ValueError("rate bounds need du_min <= 0 <= du_max and du_min < du_max element-wise")
+        self._z_min = _vector(config.z_min, nz, "z_min", allow_inf=True)
+        self._z_max = _vector(config.z_max, nz, "z_max", allow_inf=True)
+        if (
+            np.any(self._z_min >= self._z_max)
+            or np.any(self._z_min == np.inf)
+            or np.any(self._z_max == -np.inf)
+        ):
+            raise ValueError("output bounds need z_min < z_max element-wise (z_min < inf, z_max > -inf)")
+        self._has_z_rows = bool(np.any(np.isfinite(self._z_min)) or np.any(np.isfinite(self._z_max)))
+        self._rate_rows = N if config.first_move_rate_limited else N - 1
+        self._has_rate_rows = bool(np.any(np.isfinite(self._du_min)) or np.any(np.isfinite(self._du_max)))
+        if not self._has_rate_rows:
+            self._rate_rows = 0
+
+        # -- scaling -----------------------------------------------------------------------------
+        z_range = self._z_max - self._z_min
+        finite_range = z_range[np.isfinite(z_range)]
+        if config.x_scale is None:
+            sx_default = float(np.max(finite_range)) if finite_range.size else 1.0
+            self._sx = np.full(n, sx_default)
+        else:
+            self._sx = _vector(config.x_scale, n, "x_scale")
+            if np.any(self._sx <= 0.0):
+                raise ValueError("x_scale must be > 0")
+        self._su = self._u_max - self._u_min
+        sz_from_x = np.max(np.abs(model.Cz) * self._sx[None, :], axis=1)
+        self._sz = np.where(np.isfinite(z_range), z_range, sz_from_x)
+        if np.any(self._sz <= 0.0):
+            raise ValueError("every row of Cz must be nonzero (a controlled output needs a scale)")
+
+        # -- weights -----------------------------------------------------------------------------
+        self._Qz = _weight(config.Qz, nz, "Qz")
+        self._S = _weight(config.S, m, "S")
+        self._R = _weight(config.R, m, "R")
+        Dz, Du = np.diag(self._sz), np.diag(self._su)
+        scaled = [Dz @ self._Qz @ Dz, Du @ self._S @ Du, Du @ self._R @ Du]
+        self._c = max(float(np.max(np.diag(W))) for W in scaled)
+        if not self._c > 0.0:
+            raise ValueError("Qz, S and R are all zero: the cost has no weight")
+        self._Qt, self._St, self._Rt = (W / self._c for W in scaled)
+        self._use_R = bool(np.any(self._R != 0.0))
+        if config.slack_linear is None:
+            self._rho_l_t = np.full(nz, max(_SLACK_LINEAR_MIN, _SLACK_LINEAR_PER_STEP * N))
+        else:
+            rho_l = _vector(config.slack_linear, nz, "slack_linear")
+            if np.any(rho_l <= 0.0):
+                raise ValueError("slack_linear must be > 0")
+            self._rho_l_t = rho_l * self._sz / self._c
+        if config.slack_quadratic is None:
+            self._rho_q_t = np.full(nz, _SLACK_QUADRATIC)
+        else:
+            rho_q = _vector(config.slack_quadratic, nz, "slack_quadratic")
+            if np.any(rho_q < 0.0):
+                raise ValueError("slack_quadratic must be >= 0")
+            self._rho_q_t = rho_q * self._sz**2 / self._c
+
+        # -- estimator ---------------------------------------------------------------------------
+        if config.estimator_outputs is None:
+            self._est_rows = np.arange(ny)
+        else:
+            rows = list(config.estimator_outputs)
+            if not rows or any(isinstance(i, bool) or not isinstance(i, (int, np.integer)) for i in rows):
+                raise TypeError("estimator_outputs must be a non-empty sequence of int")
+            if len(set(rows)) != len(rows) or min(rows) < 0 or max(rows) >= ny:
+                raise ValueError(f"estimator_outputs must be distinct row indices of C in 0..{ny - 1}")
+            self._est_rows = np.array(rows, dtype=np.int64)
+        if config.disturbance_matrix is None:
+            self._Bd_follows_B = True
+            Bd = model.B.copy()
+        else:
+            self._Bd_follows_B = False
+            Bd = _matrix(config.disturbance_matrix, "disturbance_matrix", n, None)
+        self._Bd = Bd
+        self._n_eta = Bd.shape[1]
+        # the filter checks rank [[I - A, -Bd], [C, 0]] = n + n_eta and raises ValueError
+        self._estimator = AugmentedKalmanFilter(
+            model.A,
+            model.B,
+            model.C[self._est_rows],
+            Bd,
+            state_noise_std=config.state_noise_std,
+            disturbance_noise_std=config.disturbance_noise_std,
+            measurement_noise_std=config.measurement_noise_std,
+        )
+
+        # -- formulation and QP ------------------------------------------------------------------
+        if config.formulation == "auto":
+            self._formulation: Literal["condensed", "sparse"] = (
+                "sparse" if N >= SPARSE_FROM_HORIZON else "condensed"
+            )
+        else:
+            self._formulation = config.formulation
+        self._layout()
+        self._set_model_matrices(model.A, model.B)
+        self._set_vector_bases()
+        P, Aqp = self._qp_matrices()
+        q, lo, up = self._qp_vectors(np.zeros(n), np.zeros(self._n_eta), np.zeros((N, nz)), model.u_op)
+        # the tolerance ladder: polish at each rung; without polishing only the last rung is used
+        self._tolerances = tuple(float(e) for e in config.tolerances)
+        if not config.polish:
+            self._tolerances = self._tolerances[-1:]
+        self._osqp_eps = self._tolerances[0]
+        self._osqp_budget = int(config.max_iter)
+        self._solver = osqp.OSQP()
+        try:
+            self._solver.setup(
+                P,
+                q,
+                Aqp,
+                lo,
+                up,
+                verbose=False,
+                eps_abs=float(self._tolerances[0]),
+                eps_rel=float(self._tolerances[0]),
+                polishing=config.polish,
+                max_iter=int(config.max_iter),
+                check_termination=int(config.check_termination),
+                adaptive_rho=True,
+                adaptive_rho_interval=50,  # iteration-based, not time-based: deterministic
+                warm_starting=True,
+            )
+        except Exception as e:  # OSQPException / ValueError from the extension
+            raise ValueError(f"OSQP setup failed: {e!r}") from e
+
+        self._reset_runtime_state()
+
+    # ------------------------------------------------------------------------------------------
+    # layout and matrices
+    # ------------------------------------------------------------------------------------------
+    def _layout(self) -> None:
+        """Offsets of the variable and constraint blocks, and the warm-start shift indices."""
+        n, m, nz, N = self._n, self._m, self._nz, self._N
+        ns = N * nz if self._has_z_rows else 0
+        if self._formulation == "sparse":
+            self._x_off, self._u_off = 0, N * n
+        else:
+            self._x_off, self._u_off = 0, 0
+        nx_vars = N * n if self._formulation == "sparse" else 0
+        self._eps_off = nx_vars + N * m
+        self._nv = self._eps_off + ns
+        # rows: [dynamics (sparse)] [u bounds] [rates] [z low] [z high] [eps >= 0]
+        r = 0
+        self._row_dyn = r
+        r += nx_vars
+        self._row_u = r
+        r += N * m
+        self._row_rate = r
+        r += self._rate_rows * m
+        self._row_zlo = r
+        r += ns
+        self._row_zhi = r
+        r += ns
+        self._row_eps = r
+        r += ns
+        self._nc = r
+        self._shift_x = np.concatenate(
+            [
+                _shift_index(self._x_off, N, n) if nx_vars else np.zeros(0, dtype=np.int64),
+                _shift_index(self._u_off, N, m),
+                _shift_index(self._eps_off, N, nz) if ns else np.zeros(0, dtype=np.int64),
+            ]
+        )
+        self._shift_y = np.concatenate(
+            [
+                _shift_index(self._row_dyn, N, n) if nx_vars else np.zeros(0, dtype=np.int64),
+                _shift_index(self._row_u, N, m),
+                _shift_index(self._row_rate, self._rate_rows, m),
+                _shift_index(self._row_zlo, N, nz) if ns else np.zeros(0, dtype=np.int64),
+                _shift_index(self._row_zhi, N, nz) if ns else np.zeros(0, dtype=np.int64),
+                _shift_index(self._row_eps, N, nz) if ns else np.zeros(0, dtype=np.int64),
+            ]
+        )
+
+    def _set_model_matrices(self, A: FloatArray, B: FloatArray) -> None:
+        """Scaled model, condensed prediction matrices and the steady-state target map."""
+        n, m, N = self._n, self._m, self._N
+        Dx_inv = np.diag(1.0 / self._sx)
+        self._A = A
+        self._B = B
+        self._At = Dx_inv @ A @ np.diag(self._sx)
+        self._Bt = Dx_inv @ B @ np.diag(self._su)
+        self._Czt = np.diag(1.0 / self._sz) @ self._model.Cz @ np.diag(self._sx)
+        # condensed prediction (also used for exact output prediction of any plan)
+        Phi = np.zeros((N * n, n))
+        Psi = np.zeros((N * n, n))
+        Gam = np.zeros((N * n, N * m))
+        AkB = []
+        M = self._Bt
+        for _ in range(N):
+            AkB.append(M)
+            M = self._At @ M
+        Ak = np.eye(n)
+        Ssum = np.zeros((n, n))
+        for k in range(1, N + 1):
+            Ssum = Ssum + Ak
+            Ak = self._At @ Ak
+            rs = slice((k - 1) * n, k * n)
+            Phi[rs] = Ak
+            Psi[rs] = Ssum
+            for j in range(k):
+                Gam[rs, j * m : (j + 1) * m] = AkB[k - 1 - j]
+        Cbar = np.kron(np.eye(N), self._Czt)
+        self._Phi_z = Cbar @ Phi
+        self._Psi_z = Cbar @ Psi
+        self._Gam_z = Cbar @ Gam
+        # steady-state target: [[I - A~, -B~], [Cz~, 0]] [x~s; u~s] = [w~; r~]
+        T = np.block([[np.eye(n) - self._At, -self._Bt], [self._Czt, np.zeros((self._nz, m))]])
+        self._target_pinv = np.linalg.pinv(T)
+
+    def _qp_matrices(self) -> tuple[sp.csc_matrix, sp.csc_matrix]:
+        """P (upper triangle) and the constraint matrix, on the fixed sparsity pattern."""
+        P, Pmask, Aqp, Amask = self._qp_dense()
+        self._Pmask, self._Amask = Pmask, Amask
+        return _csc(P, Pmask), _csc(Aqp, Amask)
+
+    def _qp_dense(self) -> tuple[FloatArray, BoolArray, FloatArray, BoolArray]:
+        n, m, nz, N = self._n, self._m, self._nz, self._N
+        nv, nc = self._nv, self._nc
+        ns = N * nz if self._has_z_rows else 0
+        P = np.zeros((nv, nv))
+        Pmask = np.zeros((nv, nv), dtype=bool)
+        Aqp = np.zeros((nc, nv))
+        Amask = np.zeros((nc, nv), dtype=bool)
+        uo, eo = self._u_off, self._eps_off
+        us = slice(uo, uo + N * m)
+        # difference matrix D (N m x N m): I on the diagonal, -I on the first sub-diagonal
+        D = np.eye(N * m) - np.eye(N * m, k=-m)
+        Sbar = np.kron(np.eye(N), self._St)
+        Rbar = np.kron(np.eye(N), self._Rt)
+        Qbar = np.kron(np.eye(N), self._Qt)
+        Puu = D.T @ Sbar @ D + Rbar
+        if self._formulation == "condensed":
+            Puu = Puu + self._Gam_z.T @ Qbar @ self._Gam_z
+            P[us, us] = Puu
+            Pmask[us, us] = np.triu(np.ones((N * m, N * m), dtype=bool))
+        else:
+            xs = slice(self._x_off, self._x_off + N * n)
+            P[xs, xs] = np.kron(np.eye(N), self._Czt.T @ self._Qt @ self._Czt)
+            Pmask[xs, xs] = np.kron(np.eye(N, dtype=bool), np.triu(np.ones((n, n), dtype=bool)))
+            P[us, us] = Puu
+            band = np.kron(np.eye(N, dtype=bool), np.ones((m, m), dtype=bool))
+            band |= np.kron(np.eye(N, k=1, dtype=bool), np.ones((m, m), dtype=bool))
+            Pmask[us, us] = np.triu(band)
+            # dynamics: x(k+1) - A x(k) - B u(k) = w
+            r0 = self._row_dyn
+            for k in range(N):
+                rows = slice(r0 + k * n, r0 + (k + 1) * n)
+                Aqp[rows, k * n : (k + 1) * n] = np.eye(n)
+                Amask[rows, k * n : (k + 1) * n] = np.eye(n, dtype=bool)
+                if k > 0:
+                    Aqp[rows, (k - 1) * n : k * n] = -self._At
+                    Amask[rows, (k - 1) * n : k * n] = True
+                Aqp[rows, uo + k * m : uo + (k + 1) * m] = -self._Bt
+                Amask[rows, uo + k * m : uo + (k + 1) * m] = True
+        if ns:
+            es = slice(eo, eo + ns)
+            P[es, es] = np.diag(np.tile(self._rho_q_t, N))
+            Pmask[es, es] = np.eye(ns, dtype=bool)
+        # input bounds
+        Aqp[self._row_u : self._row_u + N * m, us] = np.eye(N * m)
+        Amask[self._row_u : self._row_u + N * m, us] = np.eye(N * m, dtype=bool)
+        # rate rows (all N, or the last N - 1 paper-literal)
+        if self._rate_rows:
+            first = N - self._rate_rows
+            rr = slice(self._row_rate, self._row_rate + self._rate_rows * m)
+            Aqp[rr, us] = D[first * m :]
+            Amask[rr, us] = D[first * m :] != 0.0
+        if ns:
+            zlo = slice(self._row_zlo, self._row_zlo + ns)
+            zhi = slice(self._row_zhi, self._row_zhi + ns)
+            if self._formulation == "condensed":
+                gmask = np.kron(np.tril(np.ones((N, N), dtype=bool)), np.ones((nz, m), dtype=bool))
+                for rows in (zlo, zhi):
+                    Aqp[rows, us] = self._Gam_z
+                    Amask[rows, us] = gmask
+            else:
+                xs = slice(self._x_off, self._x_off + N * n)
+                cz = np.kron(np.eye(N), self._Czt)
+                czmask = np.kron(np.eye(N, dtype=bool), np.ones((nz, n), dtype=bool))
+                for rows in (zlo, zhi):
+                    Aqp[rows, xs] = cz
+                    Amask[rows, xs] = czmask
+            Aqp[zlo, es] = np.eye(ns)
+            Aqp[zhi, es] = -np.eye(ns)
+            Aqp[self._row_eps : self._row_eps + ns, es] = np.eye(ns)
+            for rows in (zlo, zhi, slice(self._row_eps, self._row_eps + ns)):
+                Amask[rows, es] = np.eye(ns, dtype=bool)
+        return P, Pmask, Aqp, Amask
+
+    def _scaled_w(self, eta: FloatArray) -> FloatArray:
+        return (self._Bd @ eta) / self._sx
+
+    def _u_target(self, w_t: FloatArray, r_t_last: FloatArray) -> FloatArray:
+        """Scaled u_ss for the R term."""
+        if not self._use_R or self._config.input_target == "operating_point":
+            return np.zeros(self._m)
+        sol = self._target_pinv @ np.concatenate([w_t, r_t_last])
+        return sol[self._n :]
+
+    def _set_vector_bases(self) -> None:
+        """The parts of q, l and u that do not change from step to step (operating point fixed)."""
+        m, nz, N = self._m, self._nz, self._N
+        model = self._model
+        ns = N * nz if self._has_z_rows else 0
+        q = np.zeros(self._nv)
+        lo = np.zeros(self._nc)
+        up = np.zeros(self._nc)
+        if ns:
+            q[self._eps_off : self._eps_off + ns] = np.tile(self._rho_l_t, N)
+        self._umin_t = (self._u_min - model.u_op) / self._su
+        self._umax_t = (self._u_max - model.u_op) / self._su
+        lo[self._row_u : self._row_u + N * m] = np.tile(self._umin_t, N)
+        up[self._row_u : self._row_u + N * m] = np.tile(self._umax_t, N)
+        self._dmin_t = self._du_min / self._su
+        self._dmax_t = self._du_max / self._su
+        if self._rate_rows:
+            rr = slice(self._row_rate, self._row_rate + self._rate_rows * m)
+            lo[rr] = np.tile(self._dmin_t, self._rate_rows)
+            up[rr] = np.tile(self._dmax_t, self._rate_rows)
+        self._z_op = model.Cz @ model.x_op
+        if ns:
+            zlo = slice(self._row_zlo, self._row_zlo + ns)
+            zhi = slice(self._row_zhi, self._row_zhi + ns)
+            lo[zlo] = np.tile((self._z_min - self._z_op) / self._sz, N)
+            up[zlo] = np.inf
+            lo[zhi] = -np.inf
+            up[zhi] = np.tile((self._z_max - self._z_op) / self._sz, N)
+            es = slice(self._row_eps, self._row_eps + ns)
+            lo[es] = 0.0
+            up[es] = np.inf
+        self._q_base, self._l_base, self._u_base = q, lo, up
+
+    def _qp_vectors(
+        self, dx0: FloatArray, eta: FloatArray, r_abs: FloatArray, u_prev: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """q, l, u of the scaled QP for deviation state dx0, disturbance eta, absolute r (N, nz), u(-1)."""
+        n, m, nz, N = self._n, self._m, self._nz, self._N
+        model = self._model
+        x0t = dx0 / self._sx
+        wt = self._scaled_w(eta)
+        rt = ((r_abs - self._z_op) / self._sz).reshape(-1)
+        up_t = (u_prev - model.u_op) / self._su
+        ns = N * nz if self._has_z_rows else 0
+        q = self._q_base.copy()
+        lo = self._l_base.copy()
+        up = self._u_base.copy()
+        us = slice(self._u_off, self._u_off + N * m)
+        qu = q[us]  # view
+        qu[:m] -= self._St @ up_t
+        if self._use_R:
+            uss_t = self._u_target(wt, rt[-nz:])
+            qu -= np.tile(self._Rt @ uss_t, N)
+        if self._formulation == "condensed":
+            f = self._Phi_z @ x0t + self._Psi_z @ wt
+            qu += self._Gam_z.T @ self._qbar_mul(f - rt)
+            if ns:
+                lo[self._row_zlo : self._row_zlo + ns] -= f
+                up[self._row_zhi : self._row_zhi + ns] -= f
+        else:
+            q[self._x_off : self._x_off + N * n] = -(rt.reshape(N, nz) @ (self._Qt.T @ self._Czt)).reshape(-1)
+            dyn = np.tile(wt, N)
+            dyn[:n] += self._At @ x0t
+            lo[self._row_dyn : self._row_dyn + N * n] = dyn
+            up[self._row_dyn : self._row_dyn + N * n] = dyn
+        if self._rate_rows and self._config.first_move_rate_limited:
+            # keep [u(-1) + du_min, u(-1) + du_max] and [u_min, u_max] intersecting even if the
+            # applied u(-1) lies outside the input bounds (the physical bounds win)
+            up_eff = np.clip(up_t, self._umin_t - self._dmax_t, self._umax_t - self._dmin_t)
+            lo[self._row_rate : self._row_rate + m] += up_eff
+            up[self._row_rate : self._row_rate + m] += up_eff
+        return q, lo, up
+
+    def _qbar_mul(self, v: FloatArray) -> FloatArray:
+        """(I_N (x) Qz~) v for v of length N nz."""
+        return (v.reshape(self._N, self._nz) @ self._Qt.T).reshape(-1)
+
+    # ------------------------------------------------------------------------------------------
+    # runtime
+    # ------------------------------------------------------------------------------------------
+    def _reset_runtime_state(self) -> None:
+        self._plan: FloatArray | None = None
+        self._ws_x: FloatArray | None = None
+        self._ws_y: FloatArray | None = None
+        self._failures = 0
+        self._consecutive = 0
+        self._inaccurate = 0
+
+    def reset(self, x: ArrayLike | None = None, disturbance: ArrayLike | None = None) -> None:
+        """Forget the plan, the warm start and the counters; restart the filter.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,), optional
+            Prior state for the first :meth:`step` [m, absolute]; default x_op.
+        disturbance : array_like, shape (n_eta,), optional
+            Prior disturbance estimate; default zeros.
+        """
+        dx = None if x is None else _vector(x, self._n, "x") - self._model.x_op
+        d = None if disturbance is None else _vector(disturbance, self._n_eta, "disturbance")
+        self._estimator.reset(dx, d)
+        self._reset_runtime_state()
+
+    def step(self, y: ArrayLike, r: ArrayLike, u_prev: ArrayLike) -> MpcResult:
+        """One control step: update the estimate with y, solve the QP, return the move to apply.
+
+        Parameters
+        ----------
+        y : array_like, shape (ny,)
+            All measured outputs y = C x [m, absolute]; the rows in ``estimator_outputs`` are used.
+        r : array_like, shape (nz,) or (Np, nz)
+            Reference for z [m]: constant, or a preview whose row j is the setpoint for z(j+1).
+        u_prev : array_like, shape (m,)
+            Input applied over the last sample [m^3/s] (u(-1) of the QP and the filter's input).
+
+        Returns
+        -------
+        MpcResult
+        """
+        y_ = _vector(y, self._model.n_measured, "y")
+        u_prev_ = _vector(u_prev, self._m, "u_prev")
+        r_ = self._reference(r)
+        y_dev = (y_ - self._model.C @ self._model.x_op)[self._est_rows]
+        est = self._estimator.update(y_dev, u_prev_ - self._model.u_op)
+        return self._solve(np.array(est.x), np.array(est.disturbance), r_, u_prev_)
+
+    def plan(
+        self, x: ArrayLike, r: ArrayLike, u_prev: ArrayLike, disturbance: ArrayLike | None = None
+    ) -> MpcResult:
+        """Solve the QP from a given state and disturbance, leaving the filter untouched.
+
+        Same bookkeeping as :meth:`step` (warm start, held plan, counters). Used when the state is
+        known (tests, a shadow MPC fed by another estimator).
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            Current state [m, absolute].
+        r : array_like, shape (nz,) or (Np, nz)
+            Reference [m] as in :meth:`step`.
+        u_prev : array_like, shape (m,)
+            Input applied over the last sample [m^3/s].
+        disturbance : array_like, shape (n_eta,), optional
+            Disturbance held over the horizon; default zeros.
+        """
+        x_ = _vector(x, self._n, "x")
+        u_prev_ = _vector(u_prev, self._m, "u_prev")
+        r_ = self._reference(r)
+        if disturbance is None:
+            d_ = np.zeros(self._n_eta)
+        else:
+            d_ = _vector(disturbance, self._n_eta, "disturbance")
+        return self._solve(x_ - self._model.x_op, d_, r_, u_prev_)
+
+    def _reference(self, r: ArrayLike) -> FloatArray:
+        arr = _as_float(r, "r")
+        if arr.shape == (self._nz,):
+            arr = np.tile(arr, (self._N, 1))
+        elif arr.shape != (self._N, self._nz):
+            raise ValueError(f"r must have shape ({self._nz},) or ({self._N}, {self._nz}), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError("r must be finite")
+        return arr
+
+    def _run_osqp(self) -> _OsqpOutcome:
+        """Solve with the tolerance ladder and return the accepted solution (scaled QP variables).
+
+        Each rung solves to eps_abs = eps_rel = its tolerance with polishing, continuing the ADMM
+        iterations of the previous rung (OSQP keeps its iterate between ``solve`` calls). A
+        successful polish gives the exact optimum of the identified active set and ends the
+        ladder; otherwise the next, tighter rung runs. The last rung's solution is accepted
+        polished or not. The iteration budget ``max_iter`` is shared by all rungs. If a rung stops
+        without converging, the solution of the previous rung (if any) is used, flagged inexact,
+        unless OSQP reports "solved inaccurate" at a rung whose 10 x tolerance is tighter still.
+        """
+        ladder = self._tolerances
+        budget = int(self._config.max_iter)
+        out = _OsqpOutcome()
+        held_eps = math.inf  # tolerance met by the solution held in ``out``
+        for rung, eps in enumerate(ladder):
+            left = budget - out.iterations
+            if left <= 0:
+                break
+            if self._osqp_eps != eps or self._osqp_budget != left:
+                self._solver.update_settings(eps_abs=eps, eps_rel=eps, max_iter=left)
+                self._osqp_eps, self._osqp_budget = eps, left
+            res = self._solver.solve(raise_error=False)
+            info = res.info
+            out.iterations += int(info.iter)
+            out.time_s += float(info.update_time) + float(info.solve_time) + float(info.polish_time)
+            out.status = str(info.status)
+            x = np.array(res.x, dtype=np.float64)
+            y = np.array(res.y, dtype=np.float64)
+            finite = x.shape == (self._nv,) and bool(np.all(np.isfinite(x))) and bool(np.all(np.isfinite(y)))
+            if finite:
+                out.last_x, out.last_y = x, y
+            status_val = int(info.status_val)
+            if status_val == _OSQP_SOLVED and finite:
+                done = int(info.status_polish) == 1 or rung == len(ladder) - 1
+                out.x, out.y, out.accurate = x, y, done
+                held_eps = eps
+                if done:
+                    break
+                continue
+            # OSQP's "solved inaccurate" meets 10 x its tolerance: keep it if that is still tighter
+            if status_val == _OSQP_SOLVED_INACCURATE and finite and 10.0 * eps < held_eps:
+                out.x, out.y, out.accurate = x, y, False
+            break
+        return out
+
+    def _solve(self, dx0: FloatArray, eta: FloatArray, r_abs: FloatArray, u_prev: FloatArray) -> MpcResult:
+        q, lo, up = self._qp_vectors(dx0, eta, r_abs, u_prev)
+        self._solver.update(q=q, l=lo, u=up)
+        if self._ws_x is None or self._ws_y is None:
+            self._solver.warm_start(x=np.zeros(self._nv), y=np.zeros(self._nc))
+        else:
+            self._solver.warm_start(x=self._ws_x, y=self._ws_y)
+        out = self._run_osqp()
+        sol_x, sol_y = out.x, out.y
+        model = self._model
+        N, m = self._N, self._m
+        if sol_x is not None and sol_y is not None:
+            u_t = sol_x[self._u_off : self._u_off + N * m].reshape(N, m)
+            plan = model.u_op + u_t * self._su
+            if out.accurate:
+                status = MpcStatus.SOLVED
+            else:
+                status = MpcStatus.INACCURATE
+                self._inaccurate += 1
+            self._consecutive = 0
+            self._ws_x = sol_x[self._shift_x]
+            self._ws_y = sol_y[self._shift_y]
+        else:
+            status = MpcStatus.HELD
+            self._failures += 1
+            self._consecutive += 1
+            if self._plan is not None:
+                plan = np.vstack([self._plan[1:], self._plan[-1:]])
+            else:
+                plan = np.tile(u_prev, (N, 1))  # nothing safe to shift yet: hold u(-1)
+            if out.last_x is not None and out.last_y is not None:
+                # an unfinished ADMM iterate is still a better start than the older plan
+                self._ws_x = out.last_x[self._shift_x]
+                self._ws_y = out.last_y[self._shift_y]
+            elif self._ws_x is not None and self._ws_y is not None:
+                self._ws_x = self._ws_x[self._shift_x]
+                self._ws_y = self._ws_y[self._shift_y]
+        plan = self._project(plan, u_prev)
+        if status != MpcStatus.HELD or self._plan is not None:
+            self._plan = plan  # the last safe plan (a held u(-1) is not one)
+        z_pred = self._predict_z(dx0, eta, plan)
+        objective, violation = self._objective(plan, z_pred, r_abs, u_prev, eta)
+        return MpcResult(
+            u=_readonly(plan[0].copy()),
+            status=status,
+            osqp_status=out.status,
+            iterations=out.iterations,
+            solve_time_s=out.time_s,
+            planned_u=_readonly(plan.copy()),
+            predicted_z=_readonly(z_pred),
+            disturbance=_readonly(eta.copy()),
+            state=_readonly(model.x_op + dx0),
+            objective=objective,
+            max_output_violation=violation,
+            failures=self._failures,
+            consecutive_failures=self._consecutive,
+            inaccurate=self._inaccurate,
+        )
+
+    def _project(self, plan: FloatArray, u_prev: FloatArray) -> FloatArray:
+        """Project a plan, move by move, onto the input bounds and the rate bounds.
+
+        The first move is rate-limited relative to u(-1) (clipped so that the rate window meets
+        the input box, as in the QP) when ``first_move_rate_limited``; corrections are at solver
+        tolerance except on the held path.
+        """
+        out = np.clip(plan, self._u_min, self._u_max)
+        lim = self._has_rate_rows
+        if not lim:
+            return out
+        dmin, dmax = self._du_min, self._du_max
+        if self._config.first_move_rate_limited:
+            base = np.clip(u_prev, self._u_min - dmax, self._u_max - dmin)
+            lo0 = np.maximum(self._u_min, base + dmin)
+            out[0] = np.clip(out[0], lo0, np.minimum(self._u_max, base + dmax))
+        d = np.diff(out, axis=0)
+        if np.all(d >= dmin) and np.all(d <= dmax):
+            return out
+        for k in range(1, self._N):
+            lo = np.maximum(self._u_min, out[k - 1] + dmin)
+            hi = np.minimum(self._u_max, out[k - 1] + dmax)
+            out[k] = np.clip(out[k], lo, hi)
+        return out
+
+    def _predict_z(self, dx0: FloatArray, eta: FloatArray, plan: FloatArray) -> FloatArray:
+        """z(1..Np) [m] of the linear model for the plan (exact prediction, any formulation)."""
+        u_t = ((plan - self._model.u_op) / self._su).reshape(-1)
+        zt = self._Phi_z @ (dx0 / self._sx) + self._Psi_z @ self._scaled_w(eta) + self._Gam_z @ u_t
+        return self._z_op + zt.reshape(self._N, self._nz) * self._sz
+
+    def _objective(
+        self, plan: FloatArray, z: FloatArray, r_abs: FloatArray, u_prev: FloatArray, eta: FloatArray
+    ) -> tuple[float, float]:
+        """SI cost of the plan (constants included) and its largest output-bound violation [m]."""
+        e = z - r_abs
+        track = 0.5 * float(np.sum((e @ self._Qz) * e))
+        du = np.diff(np.vstack([u_prev, plan]), axis=0)
+        move = 0.5 * float(np.sum((du @ self._S) * du))
+        cost = track + move
+        if self._use_R:
+            model = self._model
+            rt_last = (r_abs[-1] - model.Cz @ model.x_op) / self._sz
+            uss = model.u_op + self._u_target(self._scaled_w(eta), rt_last) * self._su
+            eu = plan - uss
+            cost += 0.5 * float(np.sum((eu @ self._R) * eu))
+        viol = np.maximum(0.0, np.maximum(z - self._z_max, self._z_min - z))
+        if self._has_z_rows:
+            rho_q, rho_l = self.slack_weights
+            cost += float(np.sum(0.5 * rho_q * viol**2 + rho_l * viol))
+        return cost, float(np.max(viol)) if viol.size else 0.0
+
+    # ------------------------------------------------------------------------------------------
+    # model update
+    # ------------------------------------------------------------------------------------------
+    def update_model(
+        self, A: ArrayLike, B: ArrayLike, x_op: ArrayLike | None = None, u_op: ArrayLike | None = None
+    ) -> None:
+        """Re-linearise: replace A and B (same shapes) and optionally the operating point.
+
+        The OSQP matrices keep their sparsity pattern (every structurally possible entry is stored,
+        explicit zeros included), so their values are replaced with OSQP's ``update(Px=, Ax=)``
+        (a refactorisation, no new setup). The filter gain is recomputed (Bd follows B when it was
+        defaulted) and the state estimate is carried over, shifted if x_op moves. The new
+        (x_op, u_op) must be an equilibrium of the new model.
+
+        Parameters
+        ----------
+        A : array_like, shape (n, n)
+        B : array_like, shape (n, m)
+        x_op : array_like, shape (n,), optional
+            New operating-point state [m]; default unchanged.
+        u_op : array_like, shape (m,), optional
+            New operating-point inputs [m^3/s]; default unchanged.
+
+        Raises
+        ------
+        ValueError
+            Wrong shape, non-finite values, or an unobservable disturbance model (the controller is
+            left unchanged).
+        """
+        A_ = _matrix(A, "A", self._n, self._n)
+        B_ = _matrix(B, "B", self._n, self._m)
+        new_model = replace(
+            self._model,
+            A=A_,
+            B=B_,
+            x_op=self._model.x_op if x_op is None else _vector(x_op, self._n, "x_op"),
+            u_op=self._model.u_op if u_op is None else _vector(u_op, self._m, "u_op"),
+        )
+        Bd = B_.copy() if self._Bd_follows_B else self._Bd
+        self._estimator.set_model(A_, B_, Bd)  # validates before changing anything
+        self._estimator.shift_state(self._model.x_op - new_model.x_op)
+        old_u_op = self._model.u_op
+        self._model = new_model
+        self._Bd = Bd
+        self._set_model_matrices(new_model.A, new_model.B)
+        self._set_vector_bases()
+        P, _, Aqp, _ = self._qp_dense()
+        self._solver.update(Px=_csc_data(P, self._Pmask), Ax=_csc_data(Aqp, self._Amask))
+        if self._ws_x is not None:
+            # keep the warm start in absolute terms when u_op moves
+            us = slice(self._u_off, self._u_off + self._N * self._m)
+            self._ws_x = self._ws_x.copy()
+            self._ws_x[us] += np.tile((old_u_op - new_model.u_op) / self._su, self._N)
+
+    # ------------------------------------------------------------------------------------------
+    # properties
+    # ------------------------------------------------------------------------------------------
+    @property
+    def model(self) -> MpcModel:
+        """The current model (after :meth:`update_model`)."""
+        return self._model
+
+    @property
+    def config(self) -> MpcConfig:
+        """The configuration."""
+        return self._config
+
+    @property
+    def formulation(self) -> Literal["condensed", "sparse"]:
+        """The QP form in use ("auto" resolved)."""
+        return self._formulation
+
+    @property
+    def horizon(self) -> int:
+        """Np."""
+        return self._N
+
+    @property
+    def estimator(self) -> AugmentedKalmanFilter:
+        """The augmented steady-state Kalman filter (deviation variables)."""
+        return self._estimator
+
+    @property
+    def disturbance_matrix(self) -> FloatArray:
+        """Bd, shape (n, n_eta) (copy)."""
+        return self._Bd.copy()
+
+    @property
+    def failures(self) -> int:
+        """Total HELD steps since construction or :meth:`reset`."""
+        return self._failures
+
+    @property
+    def slack_weights(self) -> tuple[FloatArray, FloatArray]:
+        """(rho_q [1/m^2], rho_l [1/m]), each (nz,), of the output slacks in SI units."""
+        return self._c * self._rho_q_t / self._sz**2, self._c * self._rho_l_t / self._sz
+
+    @property
+    def scales(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(s_x (n,) [m], s_u (m,) [m^3/s], s_z (nz,) [m]) used to scale the QP (copies)."""
+        return self._sx.copy(), self._su.copy(), self._sz.copy()
+
+    @property
+    def qp_size(self) -> tuple[int, int]:
+        """(number of QP variables, number of constraint rows)."""
+        return self._nv, self._nc
+
+    @property
+    def cost_scale(self) -> float:
+        """c: the SI cost equals c times the scaled QP cost (plus constants)."""
+        return self._c
+
+
+def _csc_data(values: FloatArray, mask: BoolArray) -> FloatArray:
+    """Entries of ``values`` on ``mask`` in CSC (column-major) order."""
+    cols, rows = np.nonzero(mask.T)
+    return np.ascontiguousarray(values[rows, cols])

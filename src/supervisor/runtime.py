@@ -1,0 +1,108 @@
+"""The supervisor's cycle loop: paced by the PLC's scan counter, with its own staleness watchdog.
+
+The supervisor polls the PLC (one Read) several times per scan period of wall time and acts
+once per new scan: it acknowledges every scan with a new heartbeat, and every ``cycle_scans``
+scans runs a cycle (:class:`supervisor.cycle.SupervisorCore`) and writes its actions. Polling,
+not subscriptions: an asyncua subscription can go silent after a server freeze followed by a
+crash, while a Read either answers or fails.
+
+Staleness watchdog: when ``PLC.Status.Scan`` has not advanced for ``plc_stale_s`` of model time
+(at least 1 s of wall time), the PLC counts as lost even if it still answers: the supervisor
+stops writing, drops the link, reconnects, and reads the applied gains back from the next
+snapshot before it pushes anything (the adapter resynchronises from it).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from supervisor.cycle import SupervisorCore
+from supervisor.link import PlcLink
+from supervisor.server import SupervisorServer
+from tanklab.clock import Clock, MonotonicClock, sleep_or_stop
+from tanklab.config import SiteConfig
+from tanklab.errors import LinkError
+
+log = logging.getLogger(__name__)
+
+WALL_FLOOR_S = 1.0
+
+
+async def run_supervisor(
+    site: SiteConfig,
+    *,
+    host: str,
+    port: int,
+    plc_url: str,
+    stop: asyncio.Event,
+    speed: float = 1.0,
+    lockstep: bool = False,
+    clock: Clock | None = None,
+    ready: asyncio.Event | None = None,
+) -> SupervisorCore:
+    """Supervise the PLC until ``stop`` is set; return the core for inspection."""
+    if site.supervisor is None or site.plc is None:
+        raise ValueError(f"site {site.name!r} has no supervisor section")
+    if not speed > 0:
+        raise ValueError(f"speed must be > 0, got {speed}")
+    clock = clock or MonotonicClock()
+    core = SupervisorCore(site)
+    server = SupervisorServer(site, core, host, port)
+    ts_wall = site.plc.scan_period_s / speed
+    link = PlcLink(site, plc_url, timeout_s=min(2.0, max(0.2, 2 * ts_wall)))
+    poll_s = 0.001 if lockstep else max(0.005, ts_wall / 5)
+    stale_wall_s = max(site.supervisor.plc_stale_s / speed, WALL_FLOOR_S)
+    await server.start()
+    if ready is not None:
+        ready.set()
+    heartbeat = 0
+    last_scan: int | None = None
+    last_cycle_scan: int | None = None
+    last_progress = clock.now()
+    connected = False
+    try:
+        while not stop.is_set():
+            snap = await link.snapshot()
+            now = clock.now()
+            if snap is None:
+                if connected:
+                    log.warning("PLC lost; will read the applied gains back after reconnecting")
+                    core.push_refused()
+                connected = False
+                await server.publish({"Supervisor.PlcConnected": False})
+                await sleep_or_stop(clock, now + poll_s * 10, stop)
+                continue
+            if not connected:
+                connected = True
+                last_progress = now
+                core.push_refused()  # resynchronise the adapter with what the PLC applies
+                await server.publish({"Supervisor.PlcConnected": True})
+            if snap.scan == last_scan:
+                if now - last_progress > stale_wall_s:
+                    log.warning("PLC scan counter stale for %.1f s: dropping the link", now - last_progress)
+                    await link.close()
+                    last_scan = None
+                    continue
+                await sleep_or_stop(clock, now + poll_s, stop)
+                continue
+            last_scan = snap.scan
+            last_progress = now
+            try:
+                cycles_due = (
+                    last_cycle_scan is None or snap.scan - last_cycle_scan >= site.supervisor.cycle_scans
+                )
+                if cycles_due:
+                    last_cycle_scan = snap.scan
+                    actions = core.cycle(snap)
+                    if await link.apply(actions):
+                        core.push_refused()
+                    await server.publish(actions.values)
+                heartbeat += 1
+                await link.heartbeat(heartbeat)
+            except LinkError as e:
+                log.warning("%s", e)
+    finally:
+        await link.close()
+        await server.stop()
+    return core

@@ -1,0 +1,67 @@
+"""The supervisor's OPC UA server: mode, MPC diagnostics, RLS state, disturbance estimate.
+
+``Supervisor.Mode`` is writable (engineer): OFF, ADVISORY, ADAPTIVE_PID, MPC; the switch happens
+at the next cycle, bumplessly. ADAPTIVE_PID on a site whose loops are not all PID loops is
+refused with BadInvalidState.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from asyncua import Server, ua
+
+from supervisor.cycle import SupervisorCore
+from tanklab.config import SiteConfig
+from tanklab.enums import SupervisorMode
+from tanklab.tags import APPLICATION_URIS, Tag, supervisor_tags, tags_by_path
+from tanklab.ua import Publisher, build_nodes, install_write_guard
+
+log = logging.getLogger(__name__)
+
+
+class SupervisorServer:
+    """Serves a :class:`SupervisorCore` at ``opc.tcp://HOST:PORT/tanklab/supervisor``."""
+
+    def __init__(self, site: SiteConfig, core: SupervisorCore, host: str, port: int) -> None:
+        self.site = site
+        self.core = core
+        self.url = f"opc.tcp://{host}:{port}/tanklab/supervisor"
+        self.tags = supervisor_tags(site)
+        self.by_path = tags_by_path(self.tags)
+        self.server = Server()
+        self.publisher: Publisher | None = None
+
+    async def start(self) -> None:
+        srv = self.server
+        await srv.init()
+        srv.set_endpoint(self.url)
+        srv.set_server_name("tanklab supervisor")
+        await srv.set_application_uri(APPLICATION_URIS["supervisor"])
+        srv.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        _, nodes = await build_nodes(srv, self.tags)
+        install_write_guard(srv, self.tags, nodes, self._on_write)
+        self.publisher = Publisher(srv, self.by_path, nodes)
+        await srv.start()
+        await self.publish(self.core.values())
+        log.info("supervisor server listening at %s", self.url)
+
+    async def stop(self) -> None:
+        await self.server.stop()
+        log.info("supervisor server stopped")
+
+    async def publish(self, values: dict[str, Any]) -> None:
+        assert self.publisher is not None
+        await self.publisher.publish(values)
+
+    def _on_write(self, tag: Tag, value: Any) -> ua.StatusCode | None:
+        if tag.path != "Supervisor.Mode":
+            return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+        try:
+            self.core.request_mode(SupervisorMode(int(value)))
+        except ValueError as e:
+            log.info("mode change refused: %s", e)
+            return ua.StatusCode(ua.StatusCodes.BadInvalidState)
+        log.info("Supervisor.Mode := %s", SupervisorMode(int(value)).name)
+        return None

@@ -1,0 +1,108 @@
+"""Plant, PLC and supervisor as real processes (speed 20): adaptation pushes, MPC mode tracks.
+
+Assertions are on the PLC's model time and on published values; waits go through wait_until.
+"""
+
+from __future__ import annotations
+
+import pytest
+from asyncua import Client, ua
+
+from helpers import ROOT, TierProcess, free_port, wait_until
+from tanklab.enums import GainSource, LoopMode, SupervisorMode
+from tanklab.ua import resolve
+
+CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
+SPEED = "20"
+pytestmark = pytest.mark.process
+
+
+@pytest.fixture
+async def stack():
+    pp, cp, sp = free_port(), free_port(), free_port()
+    plant_url = f"opc.tcp://127.0.0.1:{pp}/tanklab/plant"
+    plc_url = f"opc.tcp://127.0.0.1:{cp}/tanklab/plc"
+    procs = [
+        await TierProcess("plant", "--config", CONFIG, "--port", str(pp), "--speed", SPEED).start(),
+        await TierProcess(
+            "plc", "--config", CONFIG, "--port", str(cp), "--plant-url", plant_url, "--speed", SPEED
+        ).start(),
+        await TierProcess(
+            "supervisor", "--config", CONFIG, "--port", str(sp), "--plc-url", plc_url, "--speed", SPEED
+        ).start(),
+    ]
+    yield plc_url, f"opc.tcp://127.0.0.1:{sp}/tanklab/supervisor"
+    for p in reversed(procs):
+        await p.stop()
+
+
+async def test_adaptive_pid_pushes_gains_the_plc_accepts(stack) -> None:
+    plc_url, sup_url = stack
+    async with Client(sup_url) as sup, Client(plc_url) as plc:
+        s = await resolve(sup, ["Supervisor.Mode", "Supervisor.RLS.LIC1.Accepted", "Supervisor.PlcConnected"])
+        gains = [f"PLC.LIC{j}.{g}" for j in (1, 2) for g in ("Kp", "Ki", "Kd")]
+        p = await resolve(plc, ["PLC.LIC1.GainSource", "PLC.Supervisor.Alive", *gains])
+        await wait_until(
+            lambda: _is(p["PLC.Supervisor.Alive"], True), 30, what="PLC sees the supervisor alive"
+        )
+        await s["Supervisor.Mode"].write_value(
+            ua.Variant(int(SupervisorMode.ADAPTIVE_PID), ua.VariantType.Int32)
+        )
+
+        async def pushed() -> bool:
+            return await p["PLC.LIC1.GainSource"].read_value() == int(GainSource.SUPERVISOR)
+
+        await wait_until(pushed, 60, what="supervisor gains applied in the PLC")
+        assert await s["Supervisor.RLS.LIC1.Accepted"].read_value() >= 1
+        fixed = [4.29e-4, 5.32e-6, -1.42e-4, 10.83e-4, 3.94e-5, -13.51e-4]
+        applied = [await p[g].read_value() for g in gains]
+        assert applied != pytest.approx(fixed, rel=1e-6), "the pushed set must differ from the fixed gains"
+        assert await s["Supervisor.Mode"].read_value() == int(SupervisorMode.ADAPTIVE_PID)
+
+
+async def test_mpc_mode_puts_loops_in_remote_and_tracks_a_step(stack) -> None:
+    plc_url, sup_url = stack
+    async with Client(sup_url) as sup, Client(plc_url) as plc:
+        s = await resolve(sup, ["Supervisor.Mode"])
+        p = await resolve(
+            plc,
+            [
+                "PLC.LIC1.Mode",
+                "PLC.LIC2.Mode",
+                "PLC.LIC1.SP",
+                "PLC.LIC1.PV",
+                "PLC.Supervisor.Alive",
+                "PLC.Status.ModelTime",
+            ],
+        )
+        await wait_until(
+            lambda: _is(p["PLC.Supervisor.Alive"], True), 30, what="PLC sees the supervisor alive"
+        )
+
+        async def near(sp: float) -> bool:
+            return abs(await p["PLC.LIC1.PV"].read_value() - sp) < 0.01
+
+        await wait_until(lambda: near(0.4), 60, what="T1 filled to 0.4 m by the PIDs")
+        await s["Supervisor.Mode"].write_value(ua.Variant(int(SupervisorMode.MPC), ua.VariantType.Int32))
+
+        async def remote() -> bool:
+            modes = [await p["PLC.LIC1.Mode"].read_value(), await p["PLC.LIC2.Mode"].read_value()]
+            return modes == [int(LoopMode.REMOTE)] * 2
+
+        await wait_until(remote, 20, what="loops in REMOTE")
+        t0 = await p["PLC.Status.ModelTime"].read_value()
+        await p["PLC.LIC1.SP"].write_value(ua.Variant(0.45, ua.VariantType.Double))
+        await wait_until(lambda: near(0.45), 60, what="T1 tracks 0.45 m under the MPC")
+        assert await p["PLC.Status.ModelTime"].read_value() - t0 < 600
+        assert await p["PLC.LIC1.Mode"].read_value() == int(LoopMode.REMOTE)
+        # Leaving MPC mode puts the loops back in AUTO.
+        await s["Supervisor.Mode"].write_value(ua.Variant(int(SupervisorMode.ADVISORY), ua.VariantType.Int32))
+
+        async def auto() -> bool:
+            return await p["PLC.LIC1.Mode"].read_value() == int(LoopMode.AUTO)
+
+        await wait_until(auto, 20, what="loops back in AUTO")
+
+
+async def _is(node, value) -> bool:
+    return await node.read_value() == value
