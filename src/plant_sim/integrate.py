@@ -71,11 +71,10 @@ def step_rk4(
         y = [y[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in range(m)]
         if any(y[i] < 0.0 or y[i] > hmax[i] for i in range(n)):
             y = net.project(np.array(y)).tolist()
-    t = t_s + dt_s
-    y = np.array(y)
-    if not np.all(np.isfinite(y)):
-        raise IntegrationError(f"RK4 produced a non-finite state at t = {t:.6g} s")
-    return y
+    out = np.array(y)
+    if not np.all(np.isfinite(out)):
+        raise IntegrationError(f"RK4 produced a non-finite state at t = {t_s + dt_s:.6g} s")
+    return out
 
 
 def step_adaptive(
