@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: venv
-	$(BIN)/tankctl plant --config $(CONFIG)
+	$(BIN)/tankctl up --config $(CONFIG)
 
 lint: venv
 	$(BIN)/ruff check src tests benchmarks

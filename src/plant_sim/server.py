@@ -94,7 +94,8 @@ class PlantServer:
         except (ValueError, KeyError) as e:
             log.info("write to %s refused by the model: %s", tag.path, e)
             return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
-        log.info("%s := %r", tag.path, value)
+        # Pump commands arrive every scan: worth a debug line; an operator's write is an event.
+        log.log(logging.DEBUG if item == "Command" else logging.INFO, "%s := %r", tag.path, value)
         return None
 
     async def _advance(self, seconds: float, commands: list[float]) -> list[ua.Variant] | ua.StatusCode:

@@ -35,6 +35,8 @@ WALL_FLOOR_S = 1.0
 """Smallest wall time any model-time timeout may correspond to [s]."""
 LOCKSTEP_ACK_S = 2.0
 """Longest wall wait for the supervisor's acknowledgement of a lock-step scan [s]."""
+LOCKSTEP_STARTUP_S = 30.0
+"""Longest wall wait for the supervisor's first heartbeat before the first lock-step scan [s]."""
 
 
 @dataclass
@@ -80,7 +82,13 @@ async def run_plc(
     program = PlcProgram(site, watchdog_timeout_s=timeout if lockstep else max(timeout, WALL_FLOOR_S * speed))
     server = PlcServer(site, program, host, port)
     ack = asyncio.Event()
-    server.on_heartbeat = ack.set
+    seen = asyncio.Event()  # the supervisor has written a heartbeat at least once
+
+    def on_heartbeat() -> None:
+        ack.set()
+        seen.set()
+
+    server.on_heartbeat = on_heartbeat
     field_link = FieldLink(site, plant_url, timeout_s=min(2.0, max(0.2, ts / speed)))
     await server.start()
     await server.publish({"PLC.Status.ScanPeriod": ts, "PLC.Supervisor.Timeout": program.watchdog.timeout_s})
@@ -90,6 +98,10 @@ async def run_plc(
     deadlines = Deadlines(period_s=period, next_deadline=clock.now())
     t_model = 0.0
     pending: FieldReadings | None = None  # lock-step: readings returned by the last Advance
+    # A deterministic lock-step run has the supervisor in step from the first scan: wait
+    # (bounded) for its first heartbeat before scanning.
+    if lockstep and site.supervisor is not None and not await _wait_event(seen, LOCKSTEP_STARTUP_S):
+        log.warning("no supervisor heartbeat within %.0f s: scanning without it", LOCKSTEP_STARTUP_S)
     try:
         while not stop.is_set():
             if not lockstep:
@@ -127,7 +139,12 @@ async def run_plc(
             )
             stats.scans += 1
             if lockstep:
-                if program.watchdog.alive:
+                w = program.watchdog
+                lost = w.ever_alive and not w.alive
+                if seen.is_set() and not lost and not ack.is_set():
+                    # Wait for the supervisor's acknowledgement of this scan; a missing one is a
+                    # missed heartbeat, so a dead supervisor stops slowing the scan once the
+                    # watchdog has declared it lost.
                     await _wait_event(ack, LOCKSTEP_ACK_S)
                 deadlines.next_deadline = clock.now()
             else:

@@ -352,6 +352,62 @@ def supervisor(
     )
 
 
+@app.command()
+def up(
+    config: ConfigOpt = None,
+    speed: SpeedOpt = None,
+    base_port: Annotated[int, typer.Option(help="Ports N, N+1, N+2 for plant, PLC, supervisor.")] = 4840,
+    clock: Annotated[
+        str, typer.Option(help="realtime (wall clock x speed) or lockstep (as fast as possible).")
+    ] = "realtime",
+    board: Annotated[
+        bool, typer.Option(help="Show the live board (--no-board: endpoints and events only).")
+    ] = True,
+    log_dir: Annotated[
+        Path, typer.Option(help="Where the tiers' logs and the plant's state file go.")
+    ] = Path("var"),
+    host: Annotated[str, typer.Option(help="Address the tiers bind and are reached at.")] = "127.0.0.1",
+) -> None:
+    """Start plant, PLC and supervisor as child processes and show a live board."""
+    from tankctl.up import Stack, run_stack
+
+    path = resolve_config(config)
+    site = load(path)
+    if site.plc is None:
+        raise fail(f"{path}: plc: `tankctl up` needs a PLC program")
+    if clock not in ("realtime", "lockstep"):
+        raise fail(f"--clock must be realtime or lockstep, got {clock!r}")
+    if not 1 <= base_port <= 65533:
+        raise fail(f"--base-port must be 1..65533, got {base_port}")
+    spd = resolve_speed(speed)
+    # The board is an OPC UA client; its reconnect chatter must not scroll over the board.
+    logging.getLogger("asyncua").setLevel(logging.CRITICAL)
+    stack = Stack(
+        site,
+        path,
+        base_port,
+        spd,
+        "lockstep" if clock == "lockstep" else "realtime",
+        log_dir / site.name,
+        host=host,
+    )
+    result: list[int] = []
+
+    async def main(stop: asyncio.Event) -> None:
+        result.append(
+            await run_stack(
+                stack,
+                board=board,
+                stop=stop,
+                restart=site.stack.restart,
+                max_restarts=site.stack.max_restarts,
+            )
+        )
+
+    run_until_signal(main)
+    raise typer.Exit(result[0] if result else 1)
+
+
 def main() -> None:
     """Console-script entry point."""
     try:

@@ -540,6 +540,13 @@ class Endpoints(Model):
     supervisor: Endpoint = Field(default_factory=lambda: Endpoint(port=4842), description="Supervisor.")
 
 
+class StackConfig(Model):
+    """How `tankctl up` runs the three tiers."""
+
+    restart: bool = Field(False, description="Restart a tier that dies (instead of stopping the stack).")
+    max_restarts: int = Field(3, ge=0, description="Restarts allowed per tier before `up` gives up.")
+
+
 class SiteConfig(Model):
     """A whole site: one YAML file."""
 
@@ -549,6 +556,7 @@ class SiteConfig(Model):
     plc: PlcConfig | None = Field(None, description="The PLC program.")
     supervisor: SupervisorConfig | None = Field(None, description="The supervisor.")
     endpoints: Endpoints = Field(default_factory=Endpoints, description="OPC UA endpoints.")
+    stack: StackConfig = Field(default_factory=StackConfig, description="How `tankctl up` runs the tiers.")
 
     @model_validator(mode="after")
     def _cross_refs(self) -> Self:

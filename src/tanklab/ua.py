@@ -378,6 +378,10 @@ async def write_value(node: Node, tag: Tag, value: Any) -> ua.StatusCode:
     return result[0]
 
 
+SESSION_TIMEOUT_MS = 30_000
+"""Session timeout a link asks for [ms]: a dead client's session is dropped within 30 s."""
+
+
 class Link:
     """An OPC UA client link to the tier below that never crashes its owner.
 
@@ -413,6 +417,7 @@ class Link:
         if loop.time() < self._next_attempt:
             return False
         client = Client(self.url, timeout=self.timeout_s)
+        client.session_timeout = SESSION_TIMEOUT_MS
         try:
             await asyncio.wait_for(client.connect(), self.timeout_s)
             self.idx = await asyncio.wait_for(namespace_index(client), self.timeout_s)
