@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -69,8 +70,14 @@ async def run_plc(
     clock: Clock | None = None,
     ready: asyncio.Event | None = None,
     stats: PlcRunStats | None = None,
+    trace: Path | None = None,
 ) -> PlcRunStats:
-    """Scan the PLC program against the plant until ``stop`` is set."""
+    """Scan the PLC program against the plant until ``stop`` is set.
+
+    ``trace``: a CSV file that gets one line per scan (scan, model time, every level read, every
+    command written, every loop's SP and mode): a small historian, and how two lock-step runs
+    are compared.
+    """
     if site.plc is None:
         raise ValueError(f"site {site.name!r} has no plc section")
     if not speed > 0:
@@ -102,6 +109,13 @@ async def run_plc(
     # (bounded) for its first heartbeat before scanning.
     if lockstep and site.supervisor is not None and not await _wait_event(seen, LOCKSTEP_STARTUP_S):
         log.warning("no supervisor heartbeat within %.0f s: scanning without it", LOCKSTEP_STARTUP_S)
+    trace_file = trace.open("w", encoding="utf-8") if trace is not None else None
+    if trace_file is not None:
+        cols = (
+            ["scan", "t_s"] + [f"LT{t[1:]}" for t in site.tank_names] + [f"{p}_cmd" for p in site.pump_names]
+        )
+        cols += [f"{lp}_{item}" for lp in site.loop_names for item in ("SP", "Mode", "GainSource")]
+        trace_file.write(",".join(cols) + "\n")
     try:
         while not stop.is_set():
             if not lockstep:
@@ -138,6 +152,15 @@ async def run_plc(
                 }
             )
             stats.scans += 1
+            if trace_file is not None:
+                row = [
+                    program.scan_count,
+                    out.values["PLC.Status.ModelTime"],
+                    *readings.levels_m,
+                    *out.commands,
+                ]
+                row += [x for lp in program.loops for x in (lp.sp_m, int(lp.mode), int(lp.source))]
+                trace_file.write(",".join(repr(float(x)) for x in row) + "\n")
             if lockstep:
                 w = program.watchdog
                 lost = w.ever_alive and not w.alive
@@ -151,6 +174,8 @@ async def run_plc(
                 deadlines.finished(clock.now())
             stats.overruns = deadlines.overruns
     finally:
+        if trace_file is not None:
+            trace_file.close()
         stats.lateness_s = list(deadlines.lateness_s)
         await field_link.close()
         await server.stop()

@@ -19,6 +19,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from tankctl import ops
 from tankctl.tune_cli import app as tune_app
 from tanklab.config import SiteConfig, load_site, site_schema
 from tanklab.errors import TanklabError
@@ -35,6 +36,7 @@ config_app = typer.Typer(help="Validate site configs and print their schema.", n
 docs_app = typer.Typer(help="Generate documentation from the code.", no_args_is_help=True)
 app.add_typer(config_app, name="config")
 app.add_typer(tune_app, name="tune")
+ops.register(app)
 app.add_typer(docs_app, name="docs")
 
 ConfigOpt = Annotated[
@@ -298,6 +300,9 @@ def plc(
     lockstep: Annotated[
         bool, typer.Option(help="Advance the plant one scan at a time (Plant.Sim.Advance).")
     ] = False,
+    trace: Annotated[
+        Path | None, typer.Option(help="CSV file getting one line per scan (a small historian).")
+    ] = None,
 ) -> None:
     """Serve the soft PLC at opc.tcp://HOST:PORT/tanklab/plc, scanning against the plant."""
     from plc_emulator.runtime import run_plc
@@ -312,7 +317,15 @@ def plc(
 
     async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
         await run_plc(
-            site, host=bind, port=p, plant_url=below, stop=stop, speed=spd, lockstep=lockstep, ready=ready
+            site,
+            host=bind,
+            port=p,
+            plant_url=below,
+            stop=stop,
+            speed=spd,
+            lockstep=lockstep,
+            ready=ready,
+            trace=trace,
         )
 
     serve(

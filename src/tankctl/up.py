@@ -65,6 +65,13 @@ class Tier:
             start_new_session=True,
         )
         self.exit_code = None
+        # The pid file lets an operator (or a test) signal exactly this tier.
+        self.pid_path.write_text(f"{self.proc.pid}\n", encoding="utf-8")
+
+    @property
+    def pid_path(self) -> Path:
+        """``<log dir>/<tier>.pid`` while the tier runs."""
+        return self.log_path.with_suffix(".pid")
 
     @property
     def running(self) -> bool:

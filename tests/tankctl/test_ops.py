@@ -1,0 +1,524 @@
+"""Operator commands of ``tankctl`` against a real stack (plant, PLC, supervisor at speed 20).
+
+The stack is started once for the module, on three consecutive free loopback ports (so the
+commands can find it with ``--base-port``). Commands run through typer's CliRunner and as
+``python -m tankctl`` subprocesses; values are checked with an independent asyncua client.
+Waits go through ``wait_until`` (bounded); assertions are on values and model time.
+
+Until ``tankctl.cli`` mounts the commands (``tankctl.ops.register``), the same commands run on
+an app built by ``register`` (in-process and with ``python -c``); once mounted, the real
+``tankctl`` app and ``python -m tankctl`` are used.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import re
+import select
+import signal
+import socket
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+import typer
+from asyncua import Client
+from typer.testing import CliRunner
+
+from helpers import ROOT, free_port, wait_until
+from tankctl.ops import TIERS, UsageError, level_bar, register, resolve_endpoints, sparkline
+from tanklab.config import load_site
+from tanklab.enums import LoopMode, SupervisorMode
+from tanklab.ua import resolve
+
+CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
+SPEED = "20"
+pytestmark = pytest.mark.process
+
+P1_MAX = 1.2e-4
+"""command_max of P1 in the Energies config: the ManualMV EURange is 0 .. P1_MAX [m^3/s]."""
+
+
+# --------------------------------------------------------------------------------------------
+# The stack
+# --------------------------------------------------------------------------------------------
+
+
+def _bindable(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def free_base_port() -> int:
+    """N such that N, N+1 and N+2 were free a moment ago (for ``--base-port N``)."""
+    for _ in range(100):
+        n = free_port()
+        if n + 2 <= 65535 and all(_bindable(n + k) for k in (1, 2)):
+            return n
+    raise AssertionError("no three consecutive free ports found")
+
+
+def _start(*args: str, deadline_s: float = 30.0) -> subprocess.Popen[str]:
+    """``python -m tankctl ARGS`` in its own session; returns once it printed its banner."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tankctl", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        cwd=ROOT,
+        start_new_session=True,
+    )
+    assert proc.stdout is not None
+    ready, _, _ = select.select([proc.stdout], [], [], deadline_s)
+    banner = proc.stdout.readline() if ready else ""
+    if not banner:
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f"tankctl {' '.join(args)} did not serve within {deadline_s} s")
+    return proc
+
+
+def _stop(proc: subprocess.Popen[str]) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@dataclass
+class Stack:
+    base: int
+
+    def url(self, tier: str) -> str:
+        offset = {t: k for k, t in enumerate(TIERS)}[tier]
+        return f"opc.tcp://127.0.0.1:{self.base + offset}/tanklab/{tier}"
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
+    base = free_base_port()
+    s = Stack(base)
+    state = str(tmp_path_factory.mktemp("plant") / "plant.json")
+    procs: list[subprocess.Popen[str]] = []
+    try:
+        common = ("--config", CONFIG, "--speed", SPEED)
+        procs.append(_start("plant", *common, "--port", str(base), "--state-file", state))
+        procs.append(_start("plc", *common, "--port", str(base + 1), "--plant-url", s.url("plant")))
+        procs.append(_start("supervisor", *common, "--port", str(base + 2), "--plc-url", s.url("plc")))
+        yield s
+    finally:
+        for p in reversed(procs):
+            _stop(p)
+
+
+# --------------------------------------------------------------------------------------------
+# Running commands and reading values
+# --------------------------------------------------------------------------------------------
+
+_RUNNER = (
+    "import typer; from tankctl.ops import register; "
+    "app = typer.Typer(pretty_exceptions_enable=False, add_completion=False); "
+    "register(app); app(prog_name='tankctl')"
+)
+
+
+def _mounted() -> bool:
+    """Whether the lead has mounted the operator commands on ``tankctl.cli.app``."""
+    from tankctl import cli
+
+    return "setpoint" in {c.name for c in cli.app.registered_commands}
+
+
+def _app() -> typer.Typer:
+    if _mounted():
+        from tankctl import cli
+
+        return cli.app
+    app = typer.Typer(pretty_exceptions_enable=False, add_completion=False)
+    register(app)
+    return app
+
+
+@dataclass
+class Ran:
+    code: int
+    stdout: str
+    stderr: str
+
+
+def cli(*args: str, env: dict[str, str] | None = None) -> Ran:
+    """Run a command in-process through typer's CliRunner."""
+    result = CliRunner().invoke(_app(), list(args), env=env)
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    ran = Ran(result.exit_code, result.stdout, result.stderr)
+    assert "Traceback" not in ran.stdout + ran.stderr
+    return ran
+
+
+def proc(*args: str, env: dict[str, str] | None = None, timeout_s: float = 60.0) -> Ran:
+    """Run a command as ``python -m tankctl ...`` (or the equivalent runner before mounting)."""
+    entry = ["-m", "tankctl"] if _mounted() else ["-c", _RUNNER]
+    done = subprocess.run(
+        [sys.executable, *entry, *args],
+        capture_output=True,
+        check=False,
+        text=True,
+        cwd=ROOT,
+        env=dict(os.environ, **(env or {})),
+        timeout=timeout_s,
+    )
+    ran = Ran(done.returncode, done.stdout, done.stderr)
+    assert "Traceback" not in ran.stdout + ran.stderr
+    return ran
+
+
+def base(stack: Stack) -> list[str]:
+    return ["--config", CONFIG, "--base-port", str(stack.base)]
+
+
+def read(url: str, *paths: str) -> list[Any]:
+    """Values read by an independent client."""
+
+    async def main() -> list[Any]:
+        async with Client(url) as client:
+            nodes = await resolve(client, list(paths))
+            return [await nodes[p].read_value() for p in paths]
+
+    return asyncio.run(main())
+
+
+def wait_for(url: str, path: str, ok: Callable[[Any], bool], what: str, deadline_s: float = 30.0) -> None:
+    """Bounded wait until ``ok(value of path)``."""
+
+    async def main() -> None:
+        async with Client(url) as client:
+            node = (await resolve(client, [path]))[path]
+
+            async def cond() -> bool:
+                return ok(await node.read_value())
+
+            await wait_until(cond, deadline_s, what=what)
+
+    asyncio.run(main())
+
+
+def expect(url: str, path: str, value: Any, deadline_s: float = 10.0) -> None:
+    """Bounded wait until the node reads ``value`` (a scan publishing values it computed
+    before the write may show the old value for one publication)."""
+    wait_for(url, path, lambda v: v == value, f"{path} == {value}", deadline_s)
+
+
+def one_line(text: str) -> str:
+    lines = text.strip().splitlines()
+    assert len(lines) == 1, lines
+    return lines[0]
+
+
+# --------------------------------------------------------------------------------------------
+# Pure parts
+# --------------------------------------------------------------------------------------------
+
+
+def test_endpoint_precedence_flags_env_base_port_site() -> None:
+    site = load_site(CONFIG)
+    default = resolve_endpoints(site, urls={}, env={})
+    assert default == {t: f"opc.tcp://127.0.0.1:{4840 + k}/tanklab/{t}" for k, t in enumerate(TIERS)}
+    by_base = resolve_endpoints(site, urls={}, env={}, base_port=5000, host="10.0.0.7")
+    assert by_base["supervisor"] == "opc.tcp://10.0.0.7:5002/tanklab/supervisor"
+    env = {"TANKLAB_BASE_PORT": "6000", "TANKLAB_PLC_URL": "opc.tcp://plc.example:7000/tanklab/plc"}
+    mixed = resolve_endpoints(site, urls={"plant": "opc.tcp://p:1/x"}, env=env)
+    assert mixed == {
+        "plant": "opc.tcp://p:1/x",  # flag
+        "plc": "opc.tcp://plc.example:7000/tanklab/plc",  # environment
+        "supervisor": "opc.tcp://127.0.0.1:6002/tanklab/supervisor",  # TANKLAB_BASE_PORT
+    }
+    assert resolve_endpoints(site, urls={}, env={}, host="h")["plc"] == "opc.tcp://h:4841/tanklab/plc"
+    with pytest.raises(UsageError, match=re.escape("--plc-url: not an opc.tcp")):
+        resolve_endpoints(site, urls={"plc": "http://x"}, env={})
+    with pytest.raises(UsageError, match="TANKLAB_BASE_PORT must be a port number"):
+        resolve_endpoints(site, urls={}, env={"TANKLAB_BASE_PORT": "abc"})
+    with pytest.raises(UsageError, match=re.escape("--base-port must be 1..65533")):
+        resolve_endpoints(site, urls={}, env={}, base_port=65534)
+
+
+def test_sparkline_and_bar_scale_their_inputs() -> None:
+    assert sparkline([0.0, 0.5, 1.0], 0.0, 1.0) == "▁▅█"
+    assert sparkline([2.0, -1.0], 0.0, 1.0) == "█▁"  # clipped to the scale
+    bar = level_bar(0.31, 0.465, 0.62, width=8).plain
+    assert bar == "████··|·"  # half full, setpoint at 3/4
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (
+            ["setpoint", "LIC9", "0.4"],
+            "unknown loop 'LIC9' (the site three_tank_energies_sim has LIC1, LIC2)",
+        ),
+        (["leak", "T9", "0.3"], "unknown tank 'T9'"),
+        (["leak", "T1", "half"], "the leak opening must be a number 0..1 or 'off'"),
+        (["valve", "V99", "0.5"], "unknown valve 'V99'"),
+        (["loop", "LIC1", "manual", "140"], "the manual output must be 0..100 % of the MV range, got 140"),
+        (["loop", "LIC1", "auto", "40"], "an output percentage goes with manual only"),
+        (["loop", "LIC1", "cascade"], "loop mode must be manual, auto or remote"),
+        (["mode", "turbo"], "mode must be adaptive-pid, mpc, advisory or off"),
+        (["browse", "historian"], "tier must be plant, plc or supervisor"),
+        (["watch", "--interval", "0"], "--interval must be a positive number"),
+        (["setpoint", "LIC1"], "Missing argument"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line_before_connecting(args: list[str], message: str) -> None:
+    # Port 1 refuses: a message about reaching a tier would mean the check came too late.
+    ran = cli(*args, "--config", CONFIG, "--base-port", "1")
+    assert ran.code == 2
+    assert message in one_line(ran.stderr)
+    assert ran.stdout == ""
+
+
+# --------------------------------------------------------------------------------------------
+# Against the running stack
+# --------------------------------------------------------------------------------------------
+
+
+def test_setpoint_is_written_to_the_plc(stack: Stack) -> None:
+    (before,) = read(stack.url("plc"), "PLC.LIC1.SP")
+    ran = cli("setpoint", "LIC1", "0.45", *base(stack))
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout) == f"PLC.LIC1.SP = 0.45 m (was {before:g} m)"
+    expect(stack.url("plc"), "PLC.LIC1.SP", 0.45)
+    assert cli("setpoint", "LIC1", "0.4", *base(stack)).code == 0
+    expect(stack.url("plc"), "PLC.LIC1.SP", 0.4)
+
+
+def test_setpoint_out_of_range_is_refused_and_the_value_stays(stack: Stack) -> None:
+    (before,) = read(stack.url("plc"), "PLC.LIC1.SP")
+    ran = proc("setpoint", "LIC1", "0.7", *base(stack))
+    assert ran.code == 1
+    assert one_line(ran.stderr) == "tankctl: PLC.LIC1.SP = 0.7 refused: BadOutOfRange"
+    assert ran.stdout == ""
+    assert read(stack.url("plc"), "PLC.LIC1.SP") == [before]
+
+
+def test_leak_opens_and_off_closes_through_the_environment_url(stack: Stack) -> None:
+    env = {"TANKLAB_PLANT_URL": stack.url("plant")}
+    ran = cli("leak", "T1", "0.3", "--config", CONFIG, env=env)
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout).startswith("Plant.T1.Leak = 0.3 (was ")
+    expect(stack.url("plant"), "Plant.T1.Leak", 0.3)
+    ran = cli("leak", "T1", "off", "--config", CONFIG, env=env)
+    assert one_line(ran.stdout) == "Plant.T1.Leak = 0 (was 0.3)"
+    expect(stack.url("plant"), "Plant.T1.Leak", 0.0)
+
+
+def test_valve_opening_through_the_url_flag(stack: Stack) -> None:
+    ran = cli("valve", "V13", "0.5", "--config", CONFIG, "--plant-url", stack.url("plant"))
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout) == "Plant.V13.Opening = 0.5 (was 1)"
+    expect(stack.url("plant"), "Plant.V13.Opening", 0.5)
+    assert cli("valve", "V13", "open", "--config", CONFIG, "--plant-url", stack.url("plant")).code == 0
+    expect(stack.url("plant"), "Plant.V13.Opening", 1.0)
+
+
+def test_loop_manual_at_a_percentage_then_auto(stack: Stack) -> None:
+    plc = stack.url("plc")
+    ran = cli("loop", "LIC1", "manual", "40", *base(stack))
+    assert ran.code == 0, ran.stderr
+    lines = ran.stdout.strip().splitlines()
+    assert lines[0] == "PLC.LIC1.Mode = MANUAL (was AUTO)"
+    assert lines[1].startswith("PLC.LIC1.ManualMV = 4.8e-05 m^3/s (40 % of 0 .. 0.00012 m^3/s)")
+    expect(plc, "PLC.LIC1.Mode", int(LoopMode.MANUAL))
+    expect(plc, "PLC.LIC1.ManualMV", pytest.approx(0.4 * P1_MAX, rel=1e-12))
+    # The next scan drives the pump with it.
+    wait_for(plc, "PLC.LIC1.MV", lambda mv: mv == pytest.approx(0.4 * P1_MAX), "MV = 40 % in MANUAL")
+    ran = cli("loop", "LIC1", "auto", *base(stack))
+    assert one_line(ran.stdout) == "PLC.LIC1.Mode = AUTO (was MANUAL)"
+    expect(plc, "PLC.LIC1.Mode", int(LoopMode.AUTO))
+
+
+def test_supervisor_mode_mpc_then_advisory(stack: Stack) -> None:
+    plc = stack.url("plc")
+    wait_for(plc, "PLC.Supervisor.Alive", lambda alive: alive is True, "the PLC sees the supervisor")
+    ran = cli("mode", "mpc", *base(stack))
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout) == "Supervisor.Mode = MPC (was ADVISORY)"
+    expect(stack.url("supervisor"), "Supervisor.Mode", int(SupervisorMode.MPC))
+    wait_for(plc, "PLC.LIC1.Mode", lambda m: m == int(LoopMode.REMOTE), "LIC1 in REMOTE under the MPC")
+    ran = cli("mode", "advisory", *base(stack))
+    assert one_line(ran.stdout) == "Supervisor.Mode = ADVISORY (was MPC)"
+    wait_for(plc, "PLC.LIC1.Mode", lambda m: m == int(LoopMode.AUTO), "LIC1 back in AUTO")
+
+
+def test_gains_show_the_applied_set_and_the_rls_state(stack: Stack) -> None:
+    kp, ki, kd = read(stack.url("plc"), "PLC.LIC1.Kp", "PLC.LIC1.Ki", "PLC.LIC1.Kd")
+    ran = cli("gains", "LIC1", "--json", *base(stack))
+    assert ran.code == 0, ran.stderr
+    doc = json.loads(ran.stdout)
+    assert (doc["loop"], doc["block"], doc["gain_source"]) == ("LIC1", "pid", "FIXED")
+    assert (doc["kp"], doc["ki"], doc["kd"]) == (kp, ki, kd)
+    sup = doc["supervisor"]
+    assert sup["reachable"] is True
+    assert sup["mode"] == "ADVISORY"
+    assert set(sup) >= {"theta", "covariance_trace", "accepted", "rejected", "last_reason"}
+    human = cli("gains", "LIC1", *base(stack)).stdout.splitlines()
+    assert human[0] == f"LIC1 (pid, AUTO): Kp = {kp:.3e}  Ki = {ki:.3e}  Kd = {kd:.3e}  from FIXED"
+    assert human[1].startswith("supervisor (ADVISORY): RLS theta [")
+
+
+def test_status_json_has_the_documented_shape(stack: Stack) -> None:
+    ran = cli("status", "--json", *base(stack))
+    assert ran.code == 0, ran.stderr
+    doc = json.loads(ran.stdout)
+    assert set(doc) == {"site", "plant", "plc", "supervisor"}
+    assert doc["site"] == "three_tank_energies_sim"
+    plant, plc, sup = doc["plant"], doc["plc"], doc["supervisor"]
+    assert all(d["reachable"] is True for d in (plant, plc, sup))
+    assert plant["url"] == stack.url("plant")
+    assert set(plant["tanks"]) == {"T1", "T2", "T3"}
+    assert set(plant["tanks"]["T1"]) == {
+        "level_m",
+        "lt_pv_m",
+        "lt_fault",
+        "lt_fault_value",
+        "leak",
+        "disturbance_m3_s",
+        "lsh",
+        "lsl",
+    }
+    assert set(plant["valves"]) == {"V13", "V32", "V20"}
+    assert plant["pumps"]["P1"]["unit"] == "m^3/s"
+    assert plant["model_time_s"] > 0 and plant["speed"] == 20.0
+    lic1 = plc["loops"]["LIC1"]
+    assert set(lic1) == {
+        "block",
+        "mode",
+        "sp_m",
+        "pv_m",
+        "mv",
+        "mv_unit",
+        "mv_percent",
+        "manual_mv",
+        "kp",
+        "ki",
+        "kd",
+        "gain_source",
+    }
+    assert (lic1["sp_m"], lic1["mv_unit"], lic1["gain_source"]) == (0.4, "m^3/s", "FIXED")
+    assert 0 <= lic1["mv_percent"] <= 100
+    assert isinstance(plc["scan"], int) and plc["io_healthy"] is True
+    assert set(plc["io"]) == {"LT1", "LT2", "LT3"}
+    assert "T1HH" in plc["alarms"] and "SupervisorLost" in plc["alarms"]
+    assert set(plc["interlocks"]) == {"T1HH", "T2HH"}
+    assert isinstance(plc["active_alarms"], list) and isinstance(plc["tripped"], list)
+    assert sup["mode"] == "ADVISORY" and sup["mpc"]["horizon"] == 10
+    human = cli("status", *base(stack))
+    assert human.code == 0
+    for word in ("three_tank_energies_sim", "T1", "T3", "LIC1", "LIC2", "alarms:", "model time"):
+        assert word in human.stdout
+
+
+def test_status_with_a_tier_down_and_with_nothing_up(stack: Stack) -> None:
+    gone = f"opc.tcp://127.0.0.1:{free_port()}/tanklab/supervisor"
+    ran = cli("status", "--json", *base(stack), "--supervisor-url", gone)
+    assert ran.code == 0  # the PLC answers
+    doc = json.loads(ran.stdout)
+    assert doc["supervisor"] == {"reachable": False, "url": gone, "error": "connection refused"}
+    assert doc["plc"]["reachable"] is True
+    nothing = proc("status", "--config", CONFIG, "--base-port", str(free_base_port()))
+    assert nothing.code == 2
+    assert one_line(nothing.stderr).startswith("tankctl: cannot reach plc at opc.tcp://127.0.0.1:")
+    assert "UNREACHABLE: connection refused" in nothing.stdout
+
+
+def _find(nodes: list[dict[str, Any]], path: str) -> dict[str, Any]:
+    for n in nodes:
+        if n["path"] == path:
+            return n
+        found = _find(n.get("children", []), path) if path.startswith(n["path"] + ".") else None
+        if found:
+            return found
+    return {}
+
+
+def test_browse_plc_json_is_the_servers_tree_with_units_and_ranges(stack: Stack) -> None:
+    ran = cli("browse", "plc", "--json", *base(stack))
+    assert ran.code == 0, ran.stderr
+    doc = json.loads(ran.stdout)
+    assert set(doc) == {"plc"}
+    nodes = doc["plc"]["nodes"]
+    assert [n["name"] for n in nodes] == ["PLC"]  # only the tanklab namespace under Objects
+    sp = _find(nodes, "PLC.LIC1.SP")
+    assert sp["class"] == "Variable"
+    assert (sp["unit"], sp["eu_range"], sp["writable"], sp["data_type"]) == ("m", [0.0, 0.6], True, "Double")
+    assert sp["value"] == 0.4
+    mode = _find(nodes, "PLC.LIC1.Mode")
+    assert mode["enum_strings"] == ["MANUAL", "AUTO", "REMOTE"] and mode["enum"] == "AUTO"
+    assert _find(nodes, "PLC.LIC1.Kp")["writable"] is False
+    assert _find(nodes, "PLC.LIC1.SetGains")["inputs"] == ["Kp", "Ki", "Kd"]
+    human = cli("browse", "plc", *base(stack))
+    assert human.code == 0
+    assert "SetGains()" in human.stdout and "0 .. 0.6" in human.stdout
+
+
+def test_watch_for_a_duration_prints_every_tank(stack: Stack) -> None:
+    ran = proc("watch", "--duration", "2", "--interval", "0.5", *base(stack))
+    assert ran.code == 0, ran.stderr
+    lines = ran.stdout.strip().splitlines()
+    assert len(lines) >= 2
+    for line in lines:
+        assert line.startswith("t=")
+        for tank in ("T1 ", "T2 ", "T3 "):
+            assert tank in line
+    # On a terminal (forced here): the live table.
+    live = cli("watch", "--duration", "1", "--interval", "0.5", *base(stack), env={"FORCE_COLOR": "1"})
+    assert live.code == 0
+    assert "tanklab watch: three_tank_energies_sim" in live.stdout
+    assert "LIC1 AUTO" in live.stdout
+
+
+def test_scenario_run_applies_its_events_in_order_on_model_time(stack: Stack, tmp_path: Path) -> None:
+    scenario = tmp_path / "two_events.yaml"
+    scenario.write_text(
+        f"name: two_events\nsite: {CONFIG}\nduration_s: 20\n"
+        "events:\n"
+        "  - {at_s: 6, kind: leak, tank: T1, opening: 0.1}\n"
+        "  - {at_s: 2, kind: setpoint, loop: LIC1, value_m: 0.43}\n"
+    )
+    (t_before,) = read(stack.url("plant"), "Plant.Sim.Time")
+    ran = proc("scenario", "run", str(scenario), "--base-port", str(stack.base))
+    assert ran.code == 0, ran.stderr
+    lines = ran.stdout.strip().splitlines()
+    applied = [line for line in lines if line.startswith("t=")]
+    assert len(applied) == 2
+    assert "@2 s setpoint LIC1 0.43 m: PLC.LIC1.SP = 0.43 m" in applied[0]
+    assert "@6 s leak T1 0.1: Plant.T1.Leak = 0.1" in applied[1]
+    times = [float(re.match(r"t=\s*([0-9.]+) s", line)[1]) for line in applied]  # type: ignore[index]
+    assert 2.0 <= times[0] <= times[1] and times[1] >= 6.0
+    assert lines[-1] == "done: 2 of 2 events applied"
+    expect(stack.url("plc"), "PLC.LIC1.SP", 0.43)
+    expect(stack.url("plant"), "Plant.T1.Leak", 0.1)
+    (t_after,) = read(stack.url("plant"), "Plant.Sim.Time")
+    assert t_after - t_before >= 6.0  # the run took at least the last event's model time
+    assert cli("setpoint", "LIC1", "0.4", *base(stack)).code == 0
+    assert cli("leak", "T1", "off", *base(stack)).code == 0
+
+
+def test_unreachable_endpoint_is_one_line_naming_it_and_exit_2() -> None:
+    url = f"opc.tcp://127.0.0.1:{free_port()}/tanklab/plc"
+    ran = proc("setpoint", "LIC1", "0.4", "--config", CONFIG, "--plc-url", url)
+    assert ran.code == 2
+    assert one_line(ran.stderr) == f"tankctl: cannot reach plc at {url}: connection refused"
+    assert ran.stdout == ""
