@@ -29,7 +29,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -411,7 +410,6 @@ def fresh_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("TANKLAB_", "VIRTUAL_ENV", "PYTHON"))}
     env["PYTHON"] = sys.executable  # the builder stage's python3 is 3.11 too
     env["PIP_DISABLE_PIP_VERSION_CHECK"] = "1"
-    start = time.monotonic()
     result = subprocess.run(
         ["sh", str(INSTALL_SCRIPT), str(ROOT), str(venv), str(wheels)],
         env=env,
@@ -420,8 +418,6 @@ def fresh_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
         timeout=240,
         check=False,
     )
-    elapsed = time.monotonic() - start
-    print(f"docker/install.sh into a fresh venv: {elapsed:.1f} s")
     assert result.returncode == 0, (
         f"docker/install.sh failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     )
