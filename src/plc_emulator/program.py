@@ -39,6 +39,7 @@ them).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
@@ -492,6 +493,59 @@ class PlcProgram:
             return GainStatus.INVALID_STATE
         lp.staged = PidGainsSpec(kp=values[0], ki=values[1], kd=values[2])
         return GainStatus.STAGED
+
+    # ---- retentive memory (warm restart) -------------------------------------------------
+
+    def retained(self) -> dict[str, Any]:
+        """The retentive data of a warm restart: per loop SP, mode, applied gains and their source.
+
+        Latched interlocks are retained too: a trip survives a restart until an operator resets it.
+        """
+        loops = {}
+        for lp in self.loops:
+            g = lp.applied
+            loops[lp.spec.name] = {
+                "sp_m": lp.sp_m,
+                "mode": lp.mode.name,
+                "gains": [g.kp, g.ki, g.kd] if g is not None else None,
+                "source": lp.source.name,
+                "manual_mv": lp.manual_mv,
+            }
+        return {"loops": loops, "tripped": [il.tank_name for il in self.interlocks if il.tripped]}
+
+    def restore_retained(self, data: Mapping[str, Any]) -> list[str]:
+        """Warm restart from :meth:`retained` output; return what could not be restored.
+
+        Every value is checked as if it were written now (setpoint range, gain box, MV range);
+        an entry that fails keeps the cold-start value and is reported, never half-applied.
+        Gains from the supervisor come back as SUPERVISOR; the watchdog turns them into FALLBACK
+        if the supervisor does not return within its timeout.
+        """
+        skipped: list[str] = []
+        for name, entry in dict(data.get("loops", {})).items():
+            try:
+                lp = self.loop(name)
+                self.set_sp(name, float(entry["sp_m"]))
+                gains = entry.get("gains")
+                if gains is not None and lp.spec.block == "pid":
+                    kp, ki, kd = (float(x) for x in gains)
+                    box = lp.spec.gain_box
+                    finite = all(math.isfinite(v) for v in (kp, ki, kd))
+                    if not finite or (box is not None and not box.contains(kp, ki, kd)):
+                        raise ValueError("retained gains outside the gain box")
+                    lp.applied = PidGainsSpec(kp=kp, ki=ki, kd=kd)
+                    lp.last_accepted = lp.applied
+                    lp.source = GainSource[str(entry["source"])]
+                # Mode before the manual value: entering MANUAL tracks the applied MV.
+                self.set_mode(name, LoopMode[str(entry["mode"])])
+                self.set_manual_mv(name, float(entry["manual_mv"]))
+            except (KeyError, ValueError, TypeError) as e:
+                skipped.append(f"{name}: {e}")
+        self._set_pid_gains()
+        tripped = set(data.get("tripped", []))
+        for il in self.interlocks:
+            il.tripped = il.tank_name in tripped
+        return skipped
 
     def reset_interlocks(self) -> list[str]:
         """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""

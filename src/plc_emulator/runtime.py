@@ -11,6 +11,10 @@ time, for the supervisor to acknowledge the scan by changing ``Heartbeat``; a mi
 as a missed heartbeat, and once the watchdog has declared the supervisor lost the PLC stops
 waiting for it.
 
+Retentive memory (``plc.retain_file``): SP, mode, applied gains with their source and latched
+trips are saved whenever they change and restored at start (warm restart), each value checked
+as if written now.
+
 Model-time timeouts have a wall-clock floor of 1 s: at speed X the heartbeat timeout is at
 least X model seconds, so scheduling noise never trips the watchdog.
 """
@@ -18,7 +22,9 @@ least X model seconds, so scheduling noise never trips the watchdog.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,6 +54,14 @@ class PlcRunStats:
     overruns: int = 0
     lateness_s: list[float] = field(default_factory=list)
     io_failures: int = 0
+
+
+def _save_retained(path: Path, data: dict[str, object]) -> None:
+    """Write the retentive memory atomically (a crash mid-write leaves the previous copy)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data), encoding="utf-8")
+    os.replace(tmp, path)
 
 
 async def _wait_event(event: asyncio.Event, timeout_s: float) -> bool:
@@ -97,6 +111,17 @@ async def run_plc(
 
     server.on_heartbeat = on_heartbeat
     field_link = FieldLink(site, plant_url, timeout_s=min(2.0, max(0.2, ts / speed)))
+    retain = Path(site.plc.retain_file) if site.plc.retain_file else None
+    if retain is not None and retain.exists():
+        try:
+            skipped = program.restore_retained(json.loads(retain.read_text(encoding="utf-8")))
+        except (OSError, ValueError) as e:
+            log.warning("cold start: retentive memory %s unreadable: %s", retain, e)
+        else:
+            log.info(
+                "warm restart from %s%s", retain, f" (not restored: {'; '.join(skipped)})" if skipped else ""
+            )
+    retained_last: dict[str, object] | None = None
     await server.start()
     await server.publish({"PLC.Status.ScanPeriod": ts, "PLC.Supervisor.Timeout": program.watchdog.timeout_s})
     if ready is not None:
@@ -152,6 +177,9 @@ async def run_plc(
                 }
             )
             stats.scans += 1
+            if retain is not None and (now_retained := program.retained()) != retained_last:
+                _save_retained(retain, now_retained)
+                retained_last = now_retained
             if trace_file is not None:
                 row = [
                     program.scan_count,

@@ -438,6 +438,10 @@ class PlcConfig(Model):
     pv_frozen_scans: int = Field(
         0, ge=0, description="Identical PV readings in a row that mark a PV frozen (bad); 0 = off."
     )
+    retain_file: str | None = Field(
+        None,
+        description="Retentive memory file (SP, mode, gains, latched trips) for warm restarts; null = cold.",
+    )
 
 
 # --------------------------------------------------------------------------------------------

@@ -204,3 +204,38 @@ async def test_plant_killed_and_restarted_plc_reports_reconnects_and_regulates(s
             return t - t_back > 60 and abs(await n["PLC.LIC1.PV"].read_value() - 0.4) < 0.02
 
         await wait_until(regulating, 60, what="T1 regulated near 0.4 m after the restart")
+
+
+async def test_plc_warm_restart_keeps_setpoint_and_mode(tmp_path: Path) -> None:
+    import yaml
+
+    data = yaml.safe_load(Path(CONFIG).read_text())
+    data["plc"]["retain_file"] = str(tmp_path / "plc-retain.json")
+    config = tmp_path / "site.yaml"
+    config.write_text(yaml.safe_dump(data))
+    pp, cp = free_port(), free_port()
+    plant_url = f"opc.tcp://127.0.0.1:{pp}/tanklab/plant"
+    plant = await TierProcess("plant", "--config", str(config), "--port", str(pp), "--speed", SPEED).start()
+    args = ("plc", "--config", str(config), "--port", str(cp), "--plant-url", plant_url, "--speed", SPEED)
+    plc = await TierProcess(*args).start()
+    url = f"opc.tcp://127.0.0.1:{cp}/tanklab/plc"
+    try:
+        async with Client(url) as client:
+            n = await resolve(client, ["PLC.LIC1.SP", "PLC.LIC2.Mode"])
+            await n["PLC.LIC1.SP"].write_value(ua.Variant(0.35, ua.VariantType.Double))
+            await n["PLC.LIC2.Mode"].write_value(ua.Variant(0, ua.VariantType.Int32))  # MANUAL
+
+            async def retained() -> bool:
+                p = tmp_path / "plc-retain.json"
+                return p.exists() and '"LIC2": {"sp_m": 0.2, "mode": "MANUAL"' in p.read_text()
+
+            await wait_until(retained, 20, what="the retentive memory written")
+        assert await plc.stop() == 0
+        plc = await TierProcess(*args).start()
+        async with Client(url) as client:
+            n = await resolve(client, ["PLC.LIC1.SP", "PLC.LIC2.Mode"])
+            assert await n["PLC.LIC1.SP"].read_value() == 0.35
+            assert await n["PLC.LIC2.Mode"].read_value() == 0
+    finally:
+        await plc.stop()
+        await plant.stop()

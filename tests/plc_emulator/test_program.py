@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from plc_emulator.program import RUNTIME_OWNED_TAGS, GainStatus, PlcProgram, ScanInputs, ScanOutputs
-from tanklab.config import SiteConfig, site_from_mapping
+from tanklab.config import PidGainsSpec, SiteConfig, site_from_mapping
 from tanklab.enums import GainSource, LoopMode
 from tanklab.tags import plc_tags
 
@@ -867,3 +867,33 @@ def test_random_requests_on_single_loop_blocks_stay_in_range(block: str, seq: li
         else:
             for _ in range(a):
                 scan(h)
+
+
+def test_warm_restart_restores_sp_mode_gains_and_trips() -> None:
+    """Retentive memory: a new program restored from retained() continues where the old one was."""
+    from tanklab.config import load_site as _load
+
+    site = _load(ROOT / "configs/three_tank_energies_sim.yaml")
+    old = PlcProgram(site)
+    old.set_sp("LIC1", 0.45)
+    old.set_mode("LIC2", LoopMode.MANUAL)
+    old.set_manual_mv("LIC2", 2e-5)
+    old.loop("LIC1").applied = PidGainsSpec(kp=8e-4, ki=9e-6, kd=-1e-4)
+    old.loop("LIC1").source = GainSource.SUPERVISOR
+    old.interlocks[0].tripped = True
+    saved = old.retained()
+    new = PlcProgram(site)
+    assert new.restore_retained(saved) == []
+    assert new.loop("LIC1").sp_m == 0.45
+    assert new.loop("LIC2").mode is LoopMode.MANUAL and new.loop("LIC2").manual_mv == 2e-5
+    assert new.loop("LIC1").applied == PidGainsSpec(kp=8e-4, ki=9e-6, kd=-1e-4)
+    assert new.loop("LIC1").source is GainSource.SUPERVISOR
+    assert new.interlocks[0].tripped
+    # A retained value that fails today's checks keeps the cold-start value and is reported.
+    saved["loops"]["LIC1"]["sp_m"] = 5.0
+    saved["loops"]["LIC2"]["gains"] = [1.0, 0.0, 0.0]
+    other = PlcProgram(site)
+    skipped = other.restore_retained(saved)
+    assert len(skipped) == 2
+    assert other.loop("LIC1").sp_m == 0.4
+    assert other.loop("LIC2").applied == site.plc.loops[1].gains
