@@ -28,6 +28,8 @@ PURE_MODULES = [
     "plc_emulator/mrac.py",
     "plc_emulator/tuning.py",
     "plc_emulator/program.py",
+    "plc_emulator/manual_auto.py",
+    "tanklab/checks.py",
     "supervisor/mpc.py",
     "supervisor/estimator.py",
     "supervisor/adaptation.py",

@@ -53,6 +53,10 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
+from plc_emulator.manual_auto import ManualAutoOutput, check_two_modes
+from tanklab.checks import finite as _finite
+from tanklab.checks import positive as _positive
+from tanklab.checks import real as _real
 from tanklab.enums import LoopMode
 
 __all__ = ["DiscreteSecondOrder", "Mrac", "MracConfig", "MracLaw", "MracStepResult"]
@@ -61,26 +65,6 @@ FloatArray = NDArray[np.float64]
 MracLaw = Literal["mit", "pi"]
 
 _TINY = 1e-12
-
-
-def _real(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    return float(value)
-
-
-def _finite(name: str, value: float) -> float:
-    x = _real(name, value)
-    if not math.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {x}")
-    return x
-
-
-def _positive(name: str, value: float) -> float:
-    x = _finite(name, value)
-    if x <= 0.0:
-        raise ValueError(f"{name} must be > 0, got {x}")
-    return x
 
 
 def _pair(name: str, value: tuple[float, float], *, finite: bool) -> tuple[float, float]:
@@ -212,10 +196,7 @@ class MracConfig:
         u0 = _finite("initial_mv", self.initial_mv)
         if not u_lo <= u0 <= u_hi:
             raise ValueError(f"initial_mv must lie within [u_min, u_max] = [{u_lo}, {u_hi}], got {u0}")
-        if not isinstance(self.initial_mode, LoopMode):
-            raise TypeError(f"initial_mode must be a LoopMode, got {type(self.initial_mode).__name__}")
-        if self.initial_mode is LoopMode.REMOTE:
-            raise ValueError("initial_mode must be MANUAL or AUTO for MRAC")
+        check_two_modes(self.initial_mode, "initial_mode")
         if not isinstance(self.freeze_when_saturated, bool):
             raise TypeError("freeze_when_saturated must be a bool")
 
@@ -257,7 +238,7 @@ class MracStepResult:
     mode: LoopMode
 
 
-class Mrac:
+class Mrac(ManualAutoOutput):
     """MRAC (normalised MIT rule) for one loop; see the module docstring for the laws.
 
     Parameters
@@ -328,41 +309,6 @@ class Mrac:
     def integral(self) -> float:
         """PI law's integral I [PV unit s]."""
         return self._integral
-
-    def set_mode(self, mode: LoopMode, mv: float | None = None) -> None:
-        """Switch between MANUAL and AUTO bumplessly (see the module docstring).
-
-        Parameters
-        ----------
-        mode : LoopMode
-            MANUAL or AUTO (REMOTE raises ValueError).
-        mv : float, optional
-            MANUAL only: the manual value (clamped); omitted, it tracks the applied MV.
-        """
-        if not isinstance(mode, LoopMode):
-            raise TypeError(f"mode must be a tanklab.enums.LoopMode, got {type(mode).__name__}")
-        if mode is LoopMode.REMOTE:
-            raise ValueError("mode must be MANUAL or AUTO for MRAC")
-        if mode is LoopMode.MANUAL:
-            if mv is not None:
-                self._manual = self._clamp(_finite("mv", mv))
-            elif self._mode is not LoopMode.MANUAL:
-                self._manual = self._u
-        else:
-            if mv is not None:
-                raise ValueError("mv applies only to MANUAL; AUTO continues from the applied MV")
-            if self._mode is not LoopMode.AUTO:
-                self._needs_init = True
-        self._mode = mode
-
-    def set_manual_mv(self, mv: float) -> None:
-        """Set the manual value [MV unit] (clamped)."""
-        self._manual = self._clamp(_finite("mv", mv))
-
-    def track(self, mv: float) -> None:
-        """Set the applied-MV memory to an external value (clamped); AUTO re-initialises from it."""
-        self._u = self._clamp(_finite("mv", mv))
-        self._needs_init = True
 
     def step(self, sp: float, y: float) -> MracStepResult:
         """Run one scan.

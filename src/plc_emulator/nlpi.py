@@ -43,7 +43,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plc_emulator.manual_auto import ManualAutoOutput, check_two_modes
 from plc_emulator.tuning import NlPiGains, nlpi_gains
+from tanklab.checks import finite as _finite
+from tanklab.checks import positive as _positive
+from tanklab.checks import real as _real
 from tanklab.enums import LoopMode
 from tanklab.rls import ExpForgettingRls
 
@@ -57,26 +61,6 @@ __all__ = [
 ]
 
 
-def _real(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    return float(value)
-
-
-def _finite(name: str, value: float) -> float:
-    x = _real(name, value)
-    if not math.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {x}")
-    return x
-
-
-def _positive(name: str, value: float) -> float:
-    x = _finite(name, value)
-    if x <= 0.0:
-        raise ValueError(f"{name} must be > 0, got {x}")
-    return x
-
-
 def _check_limits(u_min: float, u_max: float, initial_mv: float) -> None:
     lo, hi = _finite("u_min", u_min), _finite("u_max", u_max)
     if lo >= hi:
@@ -84,14 +68,6 @@ def _check_limits(u_min: float, u_max: float, initial_mv: float) -> None:
     u0 = _finite("initial_mv", initial_mv)
     if not lo <= u0 <= hi:
         raise ValueError(f"initial_mv must lie within [u_min, u_max] = [{lo}, {hi}], got {u0}")
-
-
-def _check_two_modes(mode: LoopMode) -> LoopMode:
-    if not isinstance(mode, LoopMode):
-        raise TypeError(f"mode must be a tanklab.enums.LoopMode, got {type(mode).__name__}")
-    if mode is LoopMode.REMOTE:
-        raise ValueError("mode must be MANUAL or AUTO for this block (REMOTE applies to PID loops)")
-    return mode
 
 
 @dataclass(frozen=True)
@@ -125,7 +101,7 @@ class NlPiConfig:
         if not isinstance(self.gains, NlPiGains):
             raise TypeError(f"gains must be a NlPiGains, got {type(self.gains).__name__}")
         _check_limits(self.u_min, self.u_max, self.initial_mv)
-        _check_two_modes(self.initial_mode)
+        check_two_modes(self.initial_mode)
 
 
 @dataclass(frozen=True)
@@ -162,7 +138,7 @@ class NlPiStepResult:
     mode: LoopMode
 
 
-class NlPi:
+class NlPi(ManualAutoOutput):
     """Feedback-linearized 2-DOF PI for one tank (see the module docstring for the law).
 
     Parameters
@@ -226,38 +202,6 @@ class NlPi:
         if not isinstance(gains, NlPiGains):
             raise TypeError(f"gains must be a NlPiGains, got {type(gains).__name__}")
         self._gains = gains
-
-    def set_mode(self, mode: LoopMode, mv: float | None = None) -> None:
-        """Switch between MANUAL and AUTO bumplessly.
-
-        Parameters
-        ----------
-        mode : LoopMode
-            MANUAL or AUTO (REMOTE raises ValueError).
-        mv : float, optional
-            MANUAL only: the manual value (clamped). Omitted: the manual value tracks the applied MV.
-        """
-        mode = _check_two_modes(mode)
-        if mode is LoopMode.MANUAL:
-            if mv is not None:
-                self._manual = self._clamp(_finite("mv", mv))
-            elif self._mode is not LoopMode.MANUAL:
-                self._manual = self._u
-        else:
-            if mv is not None:
-                raise ValueError("mv applies only to MANUAL; AUTO continues from the applied MV")
-            if self._mode is not LoopMode.AUTO:
-                self._needs_init = True
-        self._mode = mode
-
-    def set_manual_mv(self, mv: float) -> None:
-        """Set the manual value [MV unit] (clamped to the limits)."""
-        self._manual = self._clamp(_finite("mv", mv))
-
-    def track(self, mv: float) -> None:
-        """Set the applied-MV memory to an external value (clamped); AUTO re-initialises from it."""
-        self._u = self._clamp(_finite("mv", mv))
-        self._needs_init = True
 
     def step(self, sp: float, h: float, pv_good: bool = True) -> NlPiStepResult:
         """Run one scan.
@@ -421,7 +365,7 @@ class AdaptiveNlPiConfig:
         if not 0.0 <= a0 <= a_max:
             raise ValueError(f"a_prime0 must lie within [0, a_prime_max] = [0, {a_max}], got {a0}")
         _check_limits(self.u_min, self.u_max, self.initial_mv)
-        _check_two_modes(self.initial_mode)
+        check_two_modes(self.initial_mode)
         _positive("memory_s", self.memory_s)
         if isinstance(self.min_updates, bool) or not isinstance(self.min_updates, int):
             raise TypeError(f"min_updates must be an int, got {type(self.min_updates).__name__}")

@@ -36,6 +36,10 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+from tanklab.checks import finite as _finite
+from tanklab.checks import non_negative as _non_negative
+from tanklab.checks import positive as _positive
+
 __all__ = [
     "ImcTuning",
     "NlPiGains",
@@ -52,29 +56,6 @@ __all__ = [
 ]
 
 ZnKind = Literal["p", "pi", "pid"]
-
-
-def _finite(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    x = float(value)
-    if not math.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {x}")
-    return x
-
-
-def _positive(name: str, value: float) -> float:
-    x = _finite(name, value)
-    if x <= 0.0:
-        raise ValueError(f"{name} must be > 0, got {x}")
-    return x
-
-
-def _non_negative(name: str, value: float) -> float:
-    x = _finite(name, value)
-    if x < 0.0:
-        raise ValueError(f"{name} must be >= 0, got {x}")
-    return x
 
 
 @dataclass(frozen=True)
