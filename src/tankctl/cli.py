@@ -20,6 +20,7 @@ import numpy as np
 import typer
 
 from tankctl import ops
+from tankctl.simulate import register as register_simulate
 from tankctl.tune_cli import app as tune_app
 from tanklab.config import SiteConfig, load_site, site_schema
 from tanklab.errors import TanklabError
@@ -37,6 +38,7 @@ docs_app = typer.Typer(help="Generate documentation from the code.", no_args_is_
 app.add_typer(config_app, name="config")
 app.add_typer(tune_app, name="tune")
 ops.register(app)
+register_simulate(app)
 app.add_typer(docs_app, name="docs")
 
 ConfigOpt = Annotated[
