@@ -29,12 +29,25 @@ The RLS runs on dimensionless parameters so one set of defaults fits every unit 
 
 so that ``x_hat' theta_hat = y_hat`` exactly.
 
-A candidate gain set (all pumps) is proposed every push period and returned for pushing only when
-it passes every admissibility guard (:class:`RejectReason`), which replace the paper's vacuous
-"u inside the input set" condition: finite; inside the gain box; signs (own loop ``Kp >= 0``,
-``Ki >= Ki_min > 0``); rate limit per push; closed-loop spectral radius of the ZOH model with the
-candidate PID below ``max_spectral_radius``; and the unclamped input of the linear closed loop,
-simulated from the current state, inside ``[u_min, u_max]``. The closed-loop matrix is derived in
+When ``u_MPC,i`` sits at a bound of its input range (within ``saturation_band``), the sample is
+an inequality, not an equality: the clamped MPC wants *at least* ``u_MPC,i`` (at ``u_min``: at
+most), so the PID's move must satisfy ``psi_i' theta_i >= y_i`` (``<= y_i`` at ``u_min``). With
+``saturated="one_sided"`` (default) an estimate that already satisfies it learns nothing, and one
+that violates it is projected onto the boundary ``psi_i' theta_i = y_i`` in the metric of the RLS
+covariance, ``P`` itself left unchanged (:meth:`tanklab.rls.ExpForgettingRls.constrain`): an
+inequality bounds the parameters without measuring them. Dropping these samples (``"drop"``, the
+former default) starves the fit while the MPC fills a tank at Qmax; fitting them as equalities
+(``"equality"``) drags the gains toward the clamped move (digest 2.4's collapse).
+
+A candidate gain set (all pumps) is proposed every push period: each ready pump moves from its
+applied gains along the straight line toward its estimate, as far as the rate limit lets every one
+of its gains go. It is returned for pushing only when it passes every admissibility guard
+(:class:`RejectReason`), which replace the paper's vacuous "u inside the input set" condition:
+finite; inside the gain box; signs (own loop ``Kp >= 0``, ``Ki >= Ki_min > 0``); rate limit per
+push; closed-loop spectral radius of the ZOH model with the candidate PID below
+``max_spectral_radius``; and the unclamped input of the linear closed loop, simulated from the
+current state, inside ``[u_min, u_max]`` (excursions beyond a bound the MPC is pinned at in that
+scan are the teacher's own saturation and are not counted). The closed-loop matrix is derived in
 :func:`closed_loop_matrix`.
 
 This module is pure: model time ``t_s`` [s] and the PLC scan counter are arguments; no clock, no
@@ -47,6 +60,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -64,6 +78,7 @@ __all__ = [
     "PumpDiagnostics",
     "RejectReason",
     "SampleStatus",
+    "SaturatedSamples",
     "closed_loop_matrix",
     "closed_loop_spectral_radius",
     "input_bound_violation",
@@ -71,6 +86,7 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+SaturatedSamples = Literal["one_sided", "drop", "equality"]
 
 #: Relative tolerance on the rate limit and on the input-bound comparison (rounding only).
 _REL_TOL = 1e-9
@@ -347,10 +363,13 @@ class AdaptationConfig:
     horizon_steps : int, default 120
         Steps of the input-bound simulation (2 min at Ts = 1 s: longer than the 27 s and 58 s plant
         modes, so the first swing of the input is seen).
-    skip_saturated : bool, default True
-        Drop a pump's sample when ``u_MPC`` is within ``saturation_band`` of a bound: a clamped
-        move only says "at least this much", and fitting it as an equality drags the gains toward
-        zero (digest 2.4's collapse while the MPC sat at Qmax).
+    saturated : {"one_sided", "drop", "equality"}, default "one_sided"
+        What a pump's sample teaches when ``u_MPC`` is within ``saturation_band`` of a bound. A
+        clamped move only says "at least this much" (at ``u_max``; "at most" at ``u_min``):
+        "one_sided" uses it as that inequality (projection, see the module doc); "drop" ignores it
+        (no learning at all while the MPC fills a tank at Qmax: the Energies run learned nothing
+        for pump 1 in its first 70 s); "equality" fits it as an equality (drags the gains toward
+        the clamped move: digest 2.4's collapse).
     saturation_band : float, default 0.005
         Width of that band as a fraction of ``u_max - u_min`` (solver tolerance headroom).
     """
@@ -370,7 +389,7 @@ class AdaptationConfig:
     change_floor: PidGains | None = None
     max_spectral_radius: float = 0.995
     horizon_steps: int = 120
-    skip_saturated: bool = True
+    saturated: SaturatedSamples = "one_sided"
     saturation_band: float = 0.005
 
     def __post_init__(self) -> None:
@@ -395,6 +414,8 @@ class AdaptationConfig:
             raise TypeError("horizon_steps must be an int")
         if self.horizon_steps < 1:
             raise ValueError(f"horizon_steps must be >= 1, got {self.horizon_steps}")
+        if self.saturated not in ("one_sided", "drop", "equality"):
+            raise ValueError(f"saturated must be 'one_sided', 'drop' or 'equality', got {self.saturated!r}")
         band = _positive(self.saturation_band, "saturation_band", allow_zero=True)
         if band >= 0.5:
             raise ValueError(f"saturation_band must be < 0.5 (fraction of the input range), got {band!r}")
@@ -457,9 +478,14 @@ class PumpDiagnostics:
     skipped_nonfinite : int
         Samples skipped for a non-finite target or result.
     dropped_saturated : int
-        Samples dropped because ``u_MPC`` sat at a bound.
+        Samples with ``u_MPC`` at a bound that taught nothing: dropped (``saturated="drop"``) or
+        already consistent with the estimate (``"one_sided"``).
+    one_sided_updates : int
+        Samples with ``u_MPC`` at a bound whose inequality the estimate violated and that moved it
+        onto the boundary (``saturated="one_sided"``; not counted in ``samples_used``).
     ready : bool
-        Enough applied updates (at least the number of parameters) to propose gains.
+        Enough informative samples (applied updates plus one-sided corrections, at least the
+        number of parameters) to propose gains.
     """
 
     theta: FloatArray
@@ -468,6 +494,7 @@ class PumpDiagnostics:
     skipped_unexcited: int
     skipped_nonfinite: int
     dropped_saturated: int
+    one_sided_updates: int
     ready: bool
 
 
@@ -660,15 +687,30 @@ def simulate_pid_inputs(
     return out + model.u_op
 
 
-def input_bound_violation(u: ArrayLike, u_min: ArrayLike, u_max: ArrayLike) -> float:
+def input_bound_violation(
+    u: ArrayLike,
+    u_min: ArrayLike,
+    u_max: ArrayLike,
+    *,
+    allow_above: ArrayLike | None = None,
+    allow_below: ArrayLike | None = None,
+) -> float:
     """Peak excursion of ``u`` (shape (n_steps, n_u)) beyond ``[u_min, u_max]``, per input range.
 
     ``max_{s,i} max(u_si - u_max_i, u_min_i - u_si, 0) / (u_max_i - u_min_i)``; 0 when inside.
+    ``allow_above`` / ``allow_below`` (bool, shape (n_u,)) exempt input i's excursions above
+    ``u_max_i`` / below ``u_min_i`` (the side where the teaching MPC is itself pinned).
     """
     ua = np.asarray(u, dtype=np.float64)
     lo = np.asarray(u_min, dtype=np.float64)
     hi = np.asarray(u_max, dtype=np.float64)
-    excess = np.maximum(np.maximum(ua - hi, lo - ua), 0.0) / (hi - lo)
+    above = ua - hi
+    below = lo - ua
+    if allow_above is not None:
+        above = np.where(np.asarray(allow_above, dtype=bool), 0.0, above)
+    if allow_below is not None:
+        below = np.where(np.asarray(allow_below, dtype=bool), 0.0, below)
+    excess = np.maximum(np.maximum(above, below), 0.0) / (hi - lo)
     return float(excess.max()) if excess.size else 0.0
 
 
@@ -689,6 +731,8 @@ class _HorizonState:
     e: FloatArray
     e_prev: FloatArray
     r: FloatArray
+    mpc_at_max: NDArray[np.bool_]  # the MPC's input of that scan sat at u_max (per pump)
+    mpc_at_min: NDArray[np.bool_]
 
 
 @dataclass
@@ -847,6 +891,7 @@ class PidGainAdapter:
         self._t_last_proposal: float | None = None
         self._counters = _Counters()
         self._saturated = [0] * m
+        self._one_sided = [0] * m
         self._last_decision: Decision | None = None
 
     # ------------------------------------------------------------------ packing
@@ -894,6 +939,14 @@ class PidGainAdapter:
         """The last decision taken by :meth:`propose` or :meth:`submit`."""
         return self._last_decision
 
+    def _ready(self, i: int) -> bool:
+        """Pump i's estimate has absorbed as many informative samples as it has parameters.
+
+        Informative: an applied RLS update, or a one-sided correction that moved the estimate.
+        """
+        rls = self._rls[i]
+        return rls.n_updates + rls.n_constrained >= rls.n_params
+
     def estimate(self) -> PidGains:
         """Current RLS estimates as gains (entries a pump does not fit: the applied values)."""
         g = self._applied.stacked().copy()
@@ -911,7 +964,8 @@ class PidGainAdapter:
                 skipped_unexcited=rls.n_skipped_unexcited,
                 skipped_nonfinite=rls.n_skipped_nonfinite,
                 dropped_saturated=self._saturated[i],
-                ready=rls.n_updates >= rls.n_params,
+                one_sided_updates=self._one_sided[i],
+                ready=self._ready(i),
             )
             for i, rls in enumerate(self._rls)
         )
@@ -1013,25 +1067,40 @@ class PidGainAdapter:
 
         r0, r1, r2 = self._history[-1], self._history[-2], self._history[-3]
         self._counters.formed += 1
+        band = self._cfg.saturation_band * (model.u_max - model.u_min)
         if np.isfinite(x_v).all():
-            self._horizon = _HorizonState(x=x_v, u=r0.mv, e=r0.e, e_prev=r1.e, r=r0.sp)
+            with np.errstate(invalid="ignore"):
+                mpc_at_max = np.isfinite(um_v) & (um_v >= model.u_max - band)
+                mpc_at_min = np.isfinite(um_v) & (um_v <= model.u_min + band)
+            self._horizon = _HorizonState(
+                x=x_v, u=r0.mv, e=r0.e, e_prev=r1.e, r=r0.sp, mpc_at_max=mpc_at_max, mpc_at_min=mpc_at_min
+            )
         ts = model.ts_s
         de = r0.e - r1.e
         d2e = r0.e - 2.0 * r1.e + r2.e
-        band = self._cfg.saturation_band * (model.u_max - model.u_min)
         for i, rls in enumerate(self._rls):
             loops = list(self._loops[i])
             psi = np.column_stack([de[loops], ts * r0.e[loops], d2e[loops] / ts]).ravel()
             y = float(um_v[i] - r1.mv[i])
-            if (
-                self._cfg.skip_saturated
-                and math.isfinite(um_v[i])
-                and (um_v[i] <= model.u_min[i] + band[i] or um_v[i] >= model.u_max[i] - band[i])
-            ):
-                self._saturated[i] += 1
-                continue
             U = float(model.u_max[i] - model.u_min[i])
-            rls.update(psi / (U * self._scale[i]), y / U)
+            x_hat = psi / (U * self._scale[i])
+            at_max = math.isfinite(um_v[i]) and um_v[i] >= model.u_max[i] - band[i]
+            at_min = math.isfinite(um_v[i]) and um_v[i] <= model.u_min[i] + band[i]
+            mode = self._cfg.saturated
+            if (at_max or at_min) and mode != "equality":
+                if mode == "drop":
+                    self._saturated[i] += 1
+                    continue
+                # One-sided (module doc): the MPC pinned at u_max wants at least u_MPC, so the
+                # PID's move from the applied input must be at least y (at most y at u_min). A
+                # consistent estimate learns nothing; a violating one is projected onto psi' theta
+                # = y in the metric of P^-1, with P untouched (an inequality is not a measurement).
+                if rls.constrain(x_hat, y / U, "ge" if at_max else "le"):
+                    self._one_sided[i] += 1
+                else:
+                    self._saturated[i] += 1
+                continue
+            rls.update(x_hat, y / U)
         return SampleStatus.FORMED
 
     # ------------------------------------------------------------------ guards
@@ -1064,7 +1133,9 @@ class PidGainAdapter:
           sample: measured state, applied MV, the PID's last two errors, setpoints held) over
           ``horizon_steps``; the peak excursion beyond ``[u_min, u_max]`` (fraction of range)
           must be 0, or, when the applied gains' own simulation already leaves the bounds (a large
-          setpoint error that saturates any sensible gains), no larger than theirs. Skipped
+          setpoint error that saturates any sensible gains), no larger than theirs. Excursions of
+          pump i above ``u_max`` (below ``u_min``) are not counted when the MPC's input of that
+          sample sat at ``u_max`` (``u_min``): the teacher saturates there itself. Skipped
           (``input_violation`` NaN) before the first formed sample.
 
         Parameters
@@ -1123,12 +1194,16 @@ class PidGainAdapter:
         if hs is not None:
             kwargs = {"x0": hs.x, "u0": hs.u, "e0": hs.e, "e_prev": hs.e_prev, "r": hs.r}
             n = self._cfg.horizon_steps
+            allow = {"allow_above": hs.mpc_at_max, "allow_below": hs.mpc_at_min}
             violation = input_bound_violation(
-                simulate_pid_inputs(model, candidate, n_steps=n, **kwargs), model.u_min, model.u_max
+                simulate_pid_inputs(model, candidate, n_steps=n, **kwargs), model.u_min, model.u_max, **allow
             )
             if violation > 0.0:
                 reference = input_bound_violation(
-                    simulate_pid_inputs(model, self._applied, n_steps=n, **kwargs), model.u_min, model.u_max
+                    simulate_pid_inputs(model, self._applied, n_steps=n, **kwargs),
+                    model.u_min,
+                    model.u_max,
+                    **allow,
                 )
                 if violation > reference * (1.0 + _REL_TOL):
                     reasons.append(RejectReason.INPUT_BOUNDS)
@@ -1178,8 +1253,10 @@ class PidGainAdapter:
 
         A candidate is due when ``t_s`` is at least ``min_time_s`` after the first reading, at least
         one pump's RLS has applied as many updates as it has parameters, and ``push_period_s`` has
-        passed since the previous proposal. Each ready pump moves from its applied gains toward its
-        RLS estimate by at most the rate limit per gain; other pumps keep their applied gains.
+        passed since the previous proposal. Each ready pump moves from its applied gains along the
+        straight line toward its RLS estimate, ``g = g_applied + alpha (g_estimate - g_applied)``
+        with the largest ``alpha <= 1`` that keeps every one of its gains inside the rate limit;
+        other pumps keep their applied gains.
 
         Parameters
         ----------
@@ -1197,7 +1274,7 @@ class PidGainAdapter:
             raise ValueError("t_s must be finite")
         if self._t_start is None or t - self._t_start < self._cfg.min_time_s - 1e-9:
             return None
-        ready = [rls.n_updates >= rls.n_params for rls in self._rls]
+        ready = [self._ready(i) for i in range(len(self._rls))]
         if not any(ready):
             return None
         period = self._cfg.push_period_s
@@ -1209,6 +1286,20 @@ class PidGainAdapter:
             if ready[i]:
                 self._unpack_into(target, i, rls.theta / self._scale[i])
         limit = self._step_limit(a)
-        g = a + np.clip(target - a, -limit, limit)
+        # Move along the straight line toward the estimate, as far as the rate limit lets every
+        # gain of the pump go (direction-preserving). Clipping each gain on its own bends the path,
+        # and a bent path between two admissible sets can cross unstable ones (measured: the
+        # Energies run froze at the stability margin that way, see docs/adaptation.md).
+        delta = target - a
+        step = np.zeros_like(delta)
+        at_target = np.zeros(delta.shape, dtype=bool)
+        for i in range(self._model.n_u):
+            d_i = delta[:, i, :]
+            moving = d_i != 0.0
+            if not moving.any():
+                continue
+            alpha = min(1.0, float((limit[:, i, :][moving] / np.abs(d_i[moving])).min()))
+            step[:, i, :] = alpha * d_i
+            at_target[:, i, :] = alpha >= 1.0
         self._t_last_proposal = t
-        return self.submit(PidGains.from_stacked(g), t)
+        return self.submit(PidGains.from_stacked(np.where(at_target, target, a + step)), t)

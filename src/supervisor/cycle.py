@@ -313,6 +313,9 @@ class SupervisorCore:
             return  # no MPC step on bad measurements: hold (the PLC keeps its last RemoteMV)
         direct = self.mode is SupervisorMode.MPC
         # Shadow: the MPC's previous input is the MV applied before this scan; direct: the MV now.
+        # Snapshot k carries MV(k) = MV(k-1) + psi(k)' theta exactly (psi from snapshots k, k-1,
+        # k-2), so u_MPC(k) - MV(k-1) regressed on psi(k) is the right pairing
+        # (tests/supervisor/test_closed_loop.py checks it on PLC-produced snapshots).
         mv_prev = snap.mv if direct or prev is None or prev.scan != snap.scan - 1 else prev.mv
         r = self._reference(snap) if preview is None else preview
         if self.spec.mpc.relinearize:

@@ -45,6 +45,13 @@ through these guards, in this order:
 7. **Projection.** ``beta`` is clipped to ``[lower, upper]`` element-wise (the Euclidean projection
    onto the box; physical bounds such as ``b >= b_min > 0``).
 
+One-sided information (an inequality ``x' beta >= bound`` or ``<= bound``, e.g. a teacher input
+clamped at a bound) goes through :meth:`ExpForgettingRls.constrain` instead: a violating estimate
+is projected onto the boundary in the metric of ``P^-1`` and ``P`` is left as it is, since an
+inequality bounds the parameters without measuring them. The dead zone does not apply to it (a
+violated inequality is informative whatever the regressor's change); the finite-input check and
+the projection onto ``[lower, upper]`` do.
+
 This module is pure: no clock, no I/O, no logging.
 """
 
@@ -187,6 +194,7 @@ class ExpForgettingRls:
         self._n_updates = 0
         self._n_unexcited = 0
         self._n_nonfinite = 0
+        self._n_constrained = 0
         self.reset()
 
     # ------------------------------------------------------------------ helpers
@@ -332,6 +340,67 @@ class ExpForgettingRls:
         self._n_updates += 1
         return True
 
+    def constrain(self, x: ArrayLike, bound: float, sense: Literal["ge", "le"]) -> bool:
+        """Impose one-sided information ``x' beta >= bound`` (``"ge"``) or ``<= bound`` (``"le"``).
+
+        An inequality says where the parameters may lie, not where they are, so it must not make
+        the estimator more certain. When the current estimate satisfies it, nothing changes. When
+        it violates it, ``beta`` is projected onto the boundary in the metric of ``P^-1``::
+
+            beta <- beta + P x (bound - x' beta) / (x' P x)
+
+        (the normalised projection algorithm: the smallest change, weighted by the current
+        uncertainty, that satisfies the inequality; directions ``P`` is sure about move least),
+        then clipped to ``[lower, upper]`` (which may leave the inequality short where a bound
+        binds). ``P``, the excitation reference and the update counter are left untouched:
+        no covariance shrinks and no forgetting applies.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            Regressor.
+        bound : float
+            Right-hand side (units of ``x' beta``).
+        sense : {"ge", "le"}
+            Direction of the inequality.
+
+        Returns
+        -------
+        bool
+            True if ``beta`` moved; False if the estimate was consistent, the input non-finite
+            (counted in ``n_skipped_nonfinite``) or ``x' P x`` is zero (no direction to move in).
+
+        Raises
+        ------
+        ValueError
+            If ``x`` does not have shape (n,) or ``sense`` is not "ge" or "le".
+        """
+        if sense not in ("ge", "le"):
+            raise ValueError(f"sense must be 'ge' or 'le', got {sense!r}")
+        xv = self._as_regressor(x)
+        b = _real_scalar(bound, "bound")
+        if not (np.isfinite(xv).all() and math.isfinite(b)):
+            self._n_nonfinite += 1
+            return False
+        gap = b - float(xv @ self._theta)
+        if (sense == "ge" and gap <= 0.0) or (sense == "le" and gap >= 0.0):
+            return False
+        Px = self._P @ xv
+        xPx = float(xv @ Px)
+        if not xPx > 0.0:
+            return False
+        theta_new = self._theta + Px * (gap / xPx)
+        if not np.isfinite(theta_new).all():
+            self._n_nonfinite += 1
+            return False
+        if self._bounded:
+            theta_new = np.clip(theta_new, self._lower, self._upper)
+        moved = not np.array_equal(theta_new, self._theta)
+        self._theta = theta_new
+        if moved:
+            self._n_constrained += 1
+        return moved
+
     def predict(self, x: ArrayLike) -> float:
         """Prediction ``x' beta`` for regressor ``x`` of shape (n,)."""
         return float(self._as_regressor(x) @ self._theta)
@@ -359,6 +428,7 @@ class ExpForgettingRls:
         self._n_updates = 0
         self._n_unexcited = 0
         self._n_nonfinite = 0
+        self._n_constrained = 0
 
     # ------------------------------------------------------------------ read-only state
     @property
@@ -425,6 +495,11 @@ class ExpForgettingRls:
     def n_skipped_unexcited(self) -> int:
         """Samples skipped by the dead zone (including the first, reference-setting one)."""
         return self._n_unexcited
+
+    @property
+    def n_constrained(self) -> int:
+        """Number of :meth:`constrain` calls that moved the estimate (not counted as updates)."""
+        return self._n_constrained
 
     @property
     def n_skipped_nonfinite(self) -> int:

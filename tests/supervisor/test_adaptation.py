@@ -76,22 +76,30 @@ def equilibrium_readings(adapter: PidGainAdapter, n: int = 3, scan0: int = 0) ->
 
 
 def teacher_readings(
-    teacher: PidGains, n: int, *, seed: int = 0, e_std: float = 0.002, start: int = 0
+    teacher: PidGains,
+    n: int,
+    *,
+    seed: int = 0,
+    e_std: float = 0.002,
+    start: int = 0,
+    mv_mean: float = 6e-5,
 ) -> Iterator[dict[str, Any]]:
-    """Readings whose MPC input is exactly the teacher PID's move from the applied MV.
+    """Readings whose MPC input is exactly the teacher PID's move from the applied MV, clamped.
 
-    e ~ N(0, e_std^2) i.i.d. per loop (rich excitation); the applied MV wanders around mid-range
-    (whatever the PLC did); u_MPC(k) = MV(k-1) + sum_j [Kp De + Ki Ts e + (Kd/Ts) D2e].
+    e ~ N(0, e_std^2) i.i.d. per loop (rich excitation); the applied MV wanders around ``mv_mean``
+    (whatever the PLC did); u_MPC(k) = MV(k-1) + sum_j [Kp De + Ki Ts e + (Kd/Ts) D2e], clamped to
+    [0, Qmax] like a real MPC's input (never binding at the default mid-range MV).
     """
     rng = np.random.default_rng(seed)
     e = e_std * rng.standard_normal((n, MODEL.n_loops))
-    mv = 6e-5 + 2e-6 * rng.standard_normal((n, MODEL.n_u))
+    mv = mv_mean + 2e-6 * rng.standard_normal((n, MODEL.n_u))
     sp = H_OP[:2]
     for k in range(n):
         if k >= 2:
             de = e[k] - e[k - 1]
             d2e = e[k] - 2 * e[k - 1] + e[k - 2]
             u_mpc = mv[k - 1] + teacher.kp @ de + teacher.ki @ e[k] * TS + teacher.kd @ d2e / TS
+            u_mpc = np.clip(u_mpc, 0.0, QMAX)
         else:
             u_mpc = mv[k]
         pv = sp - e[k]
@@ -260,13 +268,17 @@ def test_simulated_inputs_match_the_closed_loop_matrix() -> None:
 
 
 # --------------------------------------------------------------------------- guards
-def setpoint_step_readings(adapter: PidGainAdapter, e1: float) -> None:
-    """Two scans at equilibrium, then a setpoint step e1 on loop 1 the PLC answered with G0 e1."""
+def setpoint_step_readings(adapter: PidGainAdapter, e1: float, u_mpc: Any = None) -> None:
+    """Two scans at equilibrium, then a setpoint step e1 on loop 1 the PLC answered with G0 e1.
+
+    ``u_mpc``: the MPC's input in the step scan (default: the operating point, not at a bound).
+    """
     equilibrium_readings(adapter, n=2)
     g0 = PAPER.kp + PAPER.ki * TS + PAPER.kd / TS
     mv = MODEL.u_op + g0 @ np.array([e1, 0.0])
+    u = MODEL.u_op if u_mpc is None else np.asarray(u_mpc, dtype=float)
     status = adapter.observe(
-        scan=2, t_s=2.0, sp=H_OP[:2] + np.array([e1, 0.0]), pv=H_OP[:2], mv=mv, u_mpc=MODEL.u_op, x=H_OP
+        scan=2, t_s=2.0, sp=H_OP[:2] + np.array([e1, 0.0]), pv=H_OP[:2], mv=mv, u_mpc=u, x=H_OP
     )
     assert status is SampleStatus.FORMED
 
@@ -346,6 +358,42 @@ def test_each_guard_rejects_its_own_bad_candidate(
     assert diag.last_reject_reason is reason
     if reason is RejectReason.UNSTABLE:
         assert decision.spectral_radius > 5.0  # measured 5.88
+
+
+@pytest.mark.parametrize(
+    ("u_mpc_1", "accepted"),
+    [(QMAX, True), (QMAX * (1 - 0.004), True), (0.0, False), (None, False)],
+    ids=["mpc_at_qmax", "mpc_within_band_of_qmax", "mpc_at_zero", "mpc_inside"],
+)
+def test_input_bound_guard_exempts_only_the_side_the_mpc_is_pinned_at(
+    u_mpc_1: float | None, accepted: bool
+) -> None:
+    # The input_bounds case of the table: Kd1 x 3 after a 0.15 m step drives pump 1 to 1.44e-4 in
+    # the linear simulation (Qmax 1.2e-4; the applied gains peak at 1.0e-4). When the MPC itself
+    # sits at Qmax in that scan, the PID is being taught to saturate there: not counted. Pinned
+    # at zero or inside its range, the excursion above Qmax still counts.
+    adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(max_change_fraction=10.0))
+    u = None if u_mpc_1 is None else [u_mpc_1, MODEL.u_op[1]]
+    setpoint_step_readings(adapter, 0.15, u_mpc=u)
+    decision = adapter.evaluate(scaled(PAPER, 0, 0, kd=3.0))
+    assert decision.accepted is accepted, decision.detail
+    if accepted:
+        assert decision.input_violation == 0.0
+    else:
+        assert decision.reasons == (RejectReason.INPUT_BOUNDS,)
+        assert decision.input_violation == pytest.approx(0.2, abs=0.01)  # (1.44e-4 - Qmax) / Qmax
+
+
+def test_input_bound_violation_allowances_are_per_side_and_per_input() -> None:
+    # Excursions: pump 1 above by 0.1e-4, pump 2 below by 0.12e-4 and above by 0.3e-4.
+    u = np.array([[1.3e-4, -0.12e-4], [1.0e-4, 1.5e-4]])
+    lo, hi = np.zeros(2), np.full(2, QMAX)
+    assert input_bound_violation(u, lo, hi) == pytest.approx(0.3 / 1.2)
+    assert input_bound_violation(u, lo, hi, allow_above=[False, True]) == pytest.approx(0.12 / 1.2)
+    assert input_bound_violation(u, lo, hi, allow_below=[False, True]) == pytest.approx(0.3 / 1.2)
+    both = {"allow_above": [False, True], "allow_below": [False, True]}
+    assert input_bound_violation(u, lo, hi, **both) == pytest.approx(0.1 / 1.2)
+    assert input_bound_violation(u, lo, hi, allow_above=[True, True], allow_below=[False, True]) == 0.0
 
 
 def test_admissible_candidate_is_accepted_and_becomes_applied() -> None:
@@ -448,6 +496,36 @@ def test_proposals_move_toward_the_teacher_within_the_rate_limit_and_converge() 
     assert diag.accepted_pushes == 119 and diag.rejected_pushes == 0
 
 
+def test_each_proposal_moves_along_the_straight_line_to_the_estimate() -> None:
+    # Per pump, candidate - applied = alpha (estimate - applied) with 0 < alpha <= 1, and when
+    # alpha < 1 the gain that binds sits exactly at its rate limit (the others inside theirs).
+    teacher = scaled(scaled(PAPER, 0, 0, kp=1.6, ki=1.3, kd=0.8), 1, 1, kp=0.7, ki=1.2, kd=1.1)
+    adapter = PidGainAdapter(MODEL, PAPER)
+    floor = 0.25 * 0.1 * np.abs(PAPER.stacked())  # the default floor (diagonal fixed gains)
+    alphas = []
+    for r in teacher_readings(teacher, 300, seed=5):
+        adapter.observe(**r)
+        before, est = adapter.applied.stacked(), adapter.estimate().stacked()
+        d = adapter.propose(r["t_s"])
+        if d is None:
+            continue
+        assert d.accepted, d.detail
+        step, delta = d.candidate.stacked() - before, est - before
+        limit = np.maximum(0.25 * np.abs(before), floor)
+        for i in range(2):
+            s_i, d_i, lim_i = step[:, i, i], delta[:, i, i], limit[:, i, i]
+            if not d_i.any():
+                continue
+            alpha = float(s_i @ d_i / (d_i @ d_i))
+            alphas.append(alpha)
+            assert 0.0 < alpha <= 1.0 + 1e-12
+            np.testing.assert_allclose(s_i, alpha * d_i, rtol=1e-9, atol=1e-22)
+            np.testing.assert_array_less(np.abs(s_i), lim_i * (1 + 1e-9))
+            if alpha < 1.0:
+                assert float(np.max(np.abs(s_i) / lim_i)) == pytest.approx(1.0, rel=1e-9)
+    assert min(alphas) < 1.0 and max(alphas) == pytest.approx(1.0)  # both regimes exercised
+
+
 def test_rejected_proposals_keep_the_applied_gains_admissible() -> None:
     # Teacher with 3 x Kp on pump 1 and the same Ki: rho = 0.9959 > 0.995 (raising Kp alone moves
     # a pole toward the PI zero at Kp / (Kp + Ki Ts), near 1). The rate limit is opened so the
@@ -538,23 +616,82 @@ def test_constant_error_history_means_no_adaptation() -> None:
     assert diag.accepted_pushes == diag.rejected_pushes == 0
 
 
-def test_samples_with_the_mpc_at_a_bound_are_dropped() -> None:
+def test_samples_with_the_mpc_at_a_bound_are_inequalities_not_equalities() -> None:
+    # The applied MV wanders near Qmax, so the teacher's move often passes Qmax and the (clamped)
+    # MPC input sits at the bound: such a sample only says "at least this much".
     teacher = PidGains.diagonal([5.0e-4, 9.0e-4], [6.0e-6, 3.5e-5], [-1.2e-4, -12.0e-4])
-    adapter = PidGainAdapter(MODEL, PAPER)
-    readings = list(teacher_readings(teacher, 1200, seed=4))
+    readings = list(teacher_readings(teacher, 1200, seed=4, mv_mean=1.18e-4))
+    band = 0.005 * QMAX
+    n_sat = [sum(r["u_mpc"][i] >= QMAX - band for r in readings[2:]) for i in range(2)]
+    assert min(n_sat) > 100
+    fits = {}
+    for mode in ("one_sided", "drop", "equality"):
+        adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(saturated=mode))
+        for r in readings:
+            adapter.observe(**r)
+        fits[mode] = adapter
+    for i, p in enumerate(fits["one_sided"].diagnostics().pumps):
+        assert p.dropped_saturated + p.one_sided_updates == n_sat[i]
+        assert p.one_sided_updates > 0  # early on, the paper's gains fall short of some bounds
+    for i, p in enumerate(fits["drop"].diagnostics().pumps):
+        assert p.dropped_saturated == n_sat[i] and p.one_sided_updates == 0
+    # Used as inequalities (or dropped) the clamped moves do not bias the fit; fitted as
+    # equalities they drag the gains toward the clamped move.
+    assert rel_err(fits["one_sided"].estimate(), teacher) < 1e-6
+    assert rel_err(fits["drop"].estimate(), teacher) < 1e-5  # fewer samples: measured 1.8e-6
+    assert all(p.dropped_saturated == 0 for p in fits["equality"].diagnostics().pumps)
+    assert rel_err(fits["equality"].estimate(), teacher) > 1e-2
+
+
+def fill_readings(n: int) -> Iterator[dict[str, Any]]:
+    """A fill from below at Qmax as the shadow MPC sees it: both tanks rise 6 mm per scan, the MPC
+    is pinned at Qmax, and the applied PID (the paper's gains) lets its output sag 2.5e-6 per scan
+    (its Kp De outweighs its Ki e)."""
+    for k in range(n):
+        e = np.array([0.4, 0.2]) - 0.006 * k
+        yield {
+            "scan": k,
+            "t_s": float(k),
+            "sp": H_OP[:2],
+            "pv": H_OP[:2] - e,
+            "mv": np.full(2, 1.17e-4 - 2.5e-6 * k),
+            "u_mpc": np.full(2, QMAX),
+            "x": np.array([H_OP[0] - e[0], H_OP[1] - e[1], 0.1]),
+        }
+
+
+#: The loops' gain_box of configs/three_tank_energies_sim.yaml.
+ENERGIES_BOX = GainBox(
+    lower=PidGains(np.zeros((2, 2)), np.zeros((2, 2)), np.diag([-1e-2, -1e-2])),
+    upper=PidGains(np.diag([1e-2, 1e-2]), np.diag([1e-3, 1e-3]), np.diag([1e-2, 1e-2])),
+)
+
+
+def test_a_pinned_mpc_teaches_a_pid_that_falls_short_of_it() -> None:
+    readings = list(fill_readings(20))
+    dropped = PidGainAdapter(MODEL, PAPER, AdaptationConfig(box=ENERGIES_BOX, saturated="drop"))
+    taught = PidGainAdapter(MODEL, PAPER, AdaptationConfig(box=ENERGIES_BOX))
     for r in readings:
-        if r["scan"] % 10 == 0 and r["scan"] >= 2:
-            r["u_mpc"] = np.array([QMAX, r["u_mpc"][1]])  # pump 1's MPC at Qmax: inequality only
-        adapter.observe(**r)
-    p1, p2 = adapter.diagnostics().pumps
-    assert p1.dropped_saturated == 119 and p2.dropped_saturated == 0  # scans 10, 20, ..., 1190
-    assert rel_err(adapter.estimate(), teacher) < 1e-6  # the dropped samples did not bias the fit
-    # Fitted as equalities, the clamped moves drag pump 1's gains away from the teacher.
-    naive = PidGainAdapter(MODEL, PAPER, AdaptationConfig(skip_saturated=False))
-    for r in readings:
-        naive.observe(**r)
-    assert naive.diagnostics().pumps[0].dropped_saturated == 0
-    assert rel_err(naive.estimate(), teacher) > 1e-2
+        dropped.observe(**r)
+        taught.observe(**r)
+    # Dropping learns nothing: no estimate, never ready, no push (the starvation of the fill).
+    assert dropped.estimate().allclose(PAPER, rtol=0.0)
+    assert not any(p.ready for p in dropped.diagnostics().pumps)
+    assert dropped.propose(19.0) is None
+    # As inequalities: every sample whose move fell short corrected the estimate, the covariance
+    # is untouched (no equality was observed) and the pumps are ready.
+    diag = taught.diagnostics()
+    for p in diag.pumps:
+        assert p.samples_used == 0 and p.one_sided_updates > 3 and p.ready
+        assert p.covariance_trace == pytest.approx(3 * taught.config.p0, rel=1e-12)
+    est = taught.estimate()
+    assert (est.ki.diagonal() > 10 * PAPER.ki.diagonal()).all()  # the integral action grows
+    # The last sample's inequality holds: the estimated PID's move reaches Qmax from the sagging MV.
+    r0, r1, r2 = readings[-1], readings[-2], readings[-3]
+    e0, e1, e2 = (r["sp"] - r["pv"] for r in (r0, r1, r2))
+    move = est.kp @ (e0 - e1) + est.ki @ e0 * TS + est.kd @ (e0 - 2 * e1 + e2) / TS
+    np.testing.assert_array_less(QMAX - r1["mv"] - 1e-12, move)
+    assert taught.propose(19.0) is not None
 
 
 def test_non_finite_mpc_input_skips_only_that_pump() -> None:
@@ -583,6 +720,8 @@ def test_adapter_and_config_validation() -> None:
         AdaptationConfig(memory_s=-1.0)
     with pytest.raises(ValueError, match="horizon_steps"):
         AdaptationConfig(horizon_steps=0)
+    with pytest.raises(ValueError, match="saturated"):
+        AdaptationConfig(saturated="skip")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="fixed gains must have shape"):
         PidGainAdapter(MODEL, PidGains.diagonal([1e-4], [1e-6], [0.0]))
     with pytest.raises(ValueError, match="inside the gain box"):

@@ -277,6 +277,58 @@ def test_non_finite_input_is_skipped_counted_and_leaves_state_untouched(x: list[
     assert dirty.n_updates == clean.n_updates
 
 
+# --------------------------------------------------------------------------- one-sided information
+def test_constrain_matches_hand_computed_projection_and_leaves_covariance_alone() -> None:
+    rls = ExpForgettingRls(2, forgetting=0.5, p0=1.0, trace_cap=10.0)
+    rls.update([1.0, 0.0], 2.0)  # as in the oracle: theta = [4/3, 0], P = [[2/3, 0], [0, 2]]
+    P_before = rls.covariance
+    # x = [1, 1], x' theta >= 3 is violated (4/3): gap 5/3, P x = [2/3, 2], x' P x = 8/3,
+    # theta += [2/3, 2] * (5/3) / (8/3) = [5/12, 5/4]  ->  theta = [7/4, 5/4], x' theta = 3.
+    assert rls.constrain([1.0, 1.0], 3.0, "ge")
+    np.testing.assert_allclose(rls.theta, [7 / 4, 5 / 4], rtol=1e-14)
+    np.testing.assert_array_equal(rls.covariance, P_before)  # an inequality is not a measurement
+    assert (rls.n_updates, rls.n_constrained) == (1, 1)
+    # Satisfied inequalities change nothing, on either side.
+    assert not rls.constrain([1.0, 1.0], 2.5, "ge")
+    assert not rls.constrain([1.0, 1.0], 3.5, "le")
+    np.testing.assert_allclose(rls.theta, [7 / 4, 5 / 4], rtol=1e-14)
+    # "le": x = [1, 0], x' theta <= 1 violated (7/4): P x = [2/3, 0], theta_1 -> 1, theta_2 kept.
+    assert rls.constrain([1.0, 0.0], 1.0, "le")
+    np.testing.assert_allclose(rls.theta, [1.0, 5 / 4], rtol=1e-14)
+    assert rls.n_constrained == 2 and rls.n_updates == 1
+
+
+def test_constrain_moves_least_along_directions_the_covariance_is_sure_of() -> None:
+    # After many updates along [1, 0] the first parameter is well known; a violated inequality on
+    # [1, 1] is then satisfied almost entirely by moving the second one.
+    rls = ExpForgettingRls(2, forgetting=1.0, p0=1e3)
+    for k in range(200):
+        rls.update([1.0, 0.0] if k % 2 else [1.0 + 1e-3, 0.0], 2.0)
+    theta1 = rls.theta[0]
+    assert rls.constrain([1.0, 1.0], theta1 + 5.0, "ge")
+    assert abs(rls.theta[0] - theta1) < 1e-3
+    assert rls.theta[1] == pytest.approx(5.0, rel=1e-3)
+
+
+def test_constrain_respects_the_box_and_validates_its_input() -> None:
+    rls = ExpForgettingRls(2, forgetting=1.0, p0=1.0, upper=[math.inf, 1.0])
+    # Projection onto x' theta = 4 gives [2, 2]; the box clips the second to 1 (left short: 3).
+    assert rls.constrain([1.0, 1.0], 4.0, "ge")
+    np.testing.assert_array_equal(rls.theta, [2.0, 1.0])
+    before = rls.theta
+    assert not rls.constrain([math.nan, 1.0], 4.0, "ge")
+    assert not rls.constrain([1.0, 1.0], math.inf, "ge")
+    assert rls.n_skipped_nonfinite == 2
+    assert not rls.constrain([0.0, 0.0], 1.0, "ge")  # no direction to move in
+    np.testing.assert_array_equal(rls.theta, before)
+    with pytest.raises(ValueError, match="sense"):
+        rls.constrain([1.0, 1.0], 1.0, "gt")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="shape"):
+        rls.constrain([1.0], 1.0, "ge")
+    rls.reset()
+    assert rls.n_constrained == 0
+
+
 # --------------------------------------------------------------------------- API details
 def test_properties_are_copies_and_reset_restores_the_prior() -> None:
     rls = ExpForgettingRls(2, forgetting=0.9, p0=2.0, theta0=[0.5, 0.5], lower=0.0)
