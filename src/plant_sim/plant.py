@@ -25,9 +25,6 @@ from plant_sim.sensors import TransmitterBank, switch_states
 from tanklab.config import PlantConfig
 from tanklab.enums import SensorFault
 
-MAX_DISTURBANCE_M3_S = 1e-3
-"""Largest magnitude of a disturbance flow an operator may set [m^3/s] (the node's EURange)."""
-
 
 @dataclass(frozen=True)
 class Balance:
@@ -188,10 +185,9 @@ class PlantSimulator:
         """Set the extra inflow (+) or outflow (-) of tank ``tank`` [m^3/s]."""
         i = self._index(self.net.tank_names, tank, "tank")
         v = self._finite(flow_m3_s, f"{tank} disturbance")
-        if abs(v) > MAX_DISTURBANCE_M3_S:
-            raise ValueError(
-                f"{tank} disturbance {v:g} outside [-{MAX_DISTURBANCE_M3_S:g}, {MAX_DISTURBANCE_M3_S:g}]"
-            )
+        limit = self.config.disturbance_limit_m3_s
+        if abs(v) > limit:
+            raise ValueError(f"{tank} disturbance {v:g} outside [-{limit:g}, {limit:g}]")
         d = self.inputs.disturbances_m3_s.copy()
         d[i] = v
         self.inputs = PlantInputs(

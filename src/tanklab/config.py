@@ -264,6 +264,16 @@ class PlantConfig(Model):
             raise ValueError("operating_point.flows_m3_s needs one flow per pump")
         return self
 
+    @property
+    def disturbance_limit_m3_s(self) -> float:
+        """Largest magnitude of a disturbance flow [m^3/s]: the largest pump's flow.
+
+        A disturbance is an extra inflow or outflow an operator injects; bounding it by what a
+        pump of the plant delivers keeps it meaningful on every plant size (the single
+        simulation tank of the NL-PI paper needs 5e-3 m^3/s, the three-tank rigs 1e-4).
+        """
+        return max(p.max_flow_m3_s for p in self.pumps)
+
     def tank(self, name: str) -> TankSpec:
         """The tank called ``name``."""
         for t in self.tanks:

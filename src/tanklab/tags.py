@@ -251,7 +251,7 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             DataType.DOUBLE,
             f"Extra inflow (+) or outflow (-) of {tank.name} [m^3/s]; an outflow stops at an empty tank.",
             unit="m^3/s",
-            eu_range=(-1e-3, 1e-3),
+            eu_range=(-plant.disturbance_limit_m3_s, plant.disturbance_limit_m3_s),
             writers=OPERATOR_UP,
         )
         b.var(
