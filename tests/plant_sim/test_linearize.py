@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +10,7 @@ import pytest
 from scipy.signal import cont2discrete
 from typer.testing import CliRunner
 
+from digest_models import three_tank_continuous
 from plant_sim.integrate import step_adaptive
 from plant_sim.linearize import jacobian, level_rhs, linearize, operating_point
 from plant_sim.models import TankNetwork, default_inputs
@@ -30,12 +30,7 @@ def _setup(name: str):
 
 def _digest_A(at: float, ap: float, mu13: float, mu32: float, mu20: float, h) -> np.ndarray:
     """The digest's formulas (section 1.1), written out independently of plant_sim."""
-    k = ap * math.sqrt(2 * G) / (2 * at)
-    h1, h2, h3 = h
-    a13 = mu13 * k / math.sqrt(h1 - h3)
-    a32 = mu32 * k / math.sqrt(h3 - h2)
-    a20 = mu20 * k / math.sqrt(h2)
-    return np.array([[-a13, 0, a13], [0, -(a32 + a20), a32], [a13, a32, -(a13 + a32)]])
+    return three_tank_continuous(at, ap, mu13, mu32, mu20, np.asarray(h))[0]
 
 
 @pytest.mark.parametrize(

@@ -3,13 +3,12 @@ LINEAR three-tank model (the model built here from the digest's formulas, sectio
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 import pytest
-import scipy.linalg
 
+from digest_models import three_tank_continuous, zoh
 from supervisor.estimator import AugmentedKalmanFilter, augmented_model, check_disturbance_observability
 from supervisor.mpc import MpcConfig, MpcController, MpcModel
 from tanklab.enums import MpcStatus
@@ -22,18 +21,7 @@ QMAX = 1.2e-4
 
 
 def kortela_matrices() -> tuple[np.ndarray, np.ndarray]:
-    k = AP * math.sqrt(2 * G) / (2 * AT)
-    h = H_OP
-    a13 = MU * k / math.sqrt(h[0] - h[2])
-    a32 = MU * k / math.sqrt(h[2] - h[1])
-    a20 = MU * k / math.sqrt(h[1])
-    Ac = np.array([[-a13, 0, a13], [0, -(a32 + a20), a32], [a13, a32, -(a13 + a32)]])
-    Bc = np.array([[1 / AT, 0], [0, 1 / AT], [0, 0]])
-    M = np.zeros((5, 5))
-    M[:3, :3] = Ac * TS
-    M[:3, 3:] = Bc * TS
-    E = scipy.linalg.expm(M)
-    return E[:3, :3], E[:3, 3:]
+    return zoh(*three_tank_continuous(AT, AP, MU, MU, MU, H_OP), TS)
 
 
 A, B = kortela_matrices()

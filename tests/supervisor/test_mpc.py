@@ -29,10 +29,10 @@ from typing import Any
 import cvxpy as cp
 import numpy as np
 import pytest
-import scipy.linalg
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from digest_models import three_tank_continuous, zoh
 from supervisor.mpc import SPARSE_FROM_HORIZON, MpcConfig, MpcController, MpcModel
 from tanklab.enums import MpcStatus
 
@@ -50,17 +50,7 @@ RANGE_U = QMAX  # input range used to express tolerances
 
 def kortela_matrices(h: np.ndarray = H_OP, ts: float = TS) -> tuple[np.ndarray, np.ndarray]:
     """ZOH discretisation of the digest's linearisation at levels h (h1 > h3 > h2)."""
-    k = AP * math.sqrt(2 * G) / (2 * AT)
-    a13 = MU * k / math.sqrt(h[0] - h[2])
-    a32 = MU * k / math.sqrt(h[2] - h[1])
-    a20 = MU * k / math.sqrt(h[1])
-    Ac = np.array([[-a13, 0, a13], [0, -(a32 + a20), a32], [a13, a32, -(a13 + a32)]])
-    Bc = np.array([[1 / AT, 0], [0, 1 / AT], [0, 0]])
-    M = np.zeros((5, 5))
-    M[:3, :3] = Ac * ts
-    M[:3, 3:] = Bc * ts
-    E = scipy.linalg.expm(M)
-    return E[:3, :3], E[:3, 3:]
+    return zoh(*three_tank_continuous(AT, AP, MU, MU, MU, h), ts)
 
 
 def equilibrium(h1: float, h2: float) -> tuple[np.ndarray, np.ndarray]:
