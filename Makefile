@@ -44,7 +44,10 @@ tools:
 test: tools lint typecheck
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 
+# Installs the `bench` extra (cvxpy, do-mpc, CasADi) on first use; writes docs/benchmarks.md.
 bench: venv
+	@$(BIN)/python -c "import cvxpy, casadi, do_mpc" >/dev/null 2>&1 || \
+	  $(BIN)/python -m pip install --quiet -e '.[dev,bench]'
 	$(BIN)/python -m benchmarks.run
 
 docs: venv

@@ -1,0 +1,163 @@
+"""Shared pieces of the benchmarks: summaries of samples, goals, the machine, sites, scenario.
+
+A :class:`Summary` is what every table shows: n, median and p99 (``numpy.percentile``, linear
+interpolation), plus min and max. A :class:`Goal` pairs a target from the issue with the
+measured value and says met / not met.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from tanklab.config import SiteConfig, load_site
+
+ROOT = Path(__file__).resolve().parents[1]
+ENERGIES = ROOT / "configs" / "three_tank_energies_sim.yaml"
+"""The default config (``tankctl``'s default site): the benchmark scenario runs on it."""
+KORTELA = ROOT / "configs" / "three_tank_kortela.yaml"
+"""The OPC UA MPC paper's plant: the MPC timing runs on it."""
+
+SCENARIO_STEP_AT_S = 10.0
+"""The benchmark scenario: LIC1's setpoint steps by ``SCENARIO_STEP_M`` at this model time [s]."""
+SCENARIO_STEP_M = 0.05
+SCENARIO_DURATION_S = 1000.0
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Order statistics of a sample (in the sample's unit)."""
+
+    n: int
+    median: float
+    p99: float
+    minimum: float
+    maximum: float
+    mean: float
+
+    @classmethod
+    def of(cls, samples: Iterable[float]) -> Summary:
+        arr = np.asarray([s for s in samples if math.isfinite(s)], dtype=float)
+        if arr.size == 0:
+            nan = math.nan
+            return cls(0, nan, nan, nan, nan, nan)
+        p99 = np.percentile(arr, 99)
+        return cls(
+            n=int(arr.size),
+            median=float(np.median(arr)),
+            p99=float(p99),
+            minimum=float(arr.min()),
+            maximum=float(arr.max()),
+            mean=float(arr.mean()),
+        )
+
+    def scaled(self, factor: float) -> Summary:
+        """The same summary in another unit (e.g. 1e3 for s -> ms)."""
+        return Summary(
+            self.n,
+            self.median * factor,
+            self.p99 * factor,
+            self.minimum * factor,
+            self.maximum * factor,
+            self.mean * factor,
+        )
+
+
+@dataclass(frozen=True)
+class Goal:
+    """A target of the issue against its measurement."""
+
+    name: str
+    target: str
+    measured: str
+    met: bool | None  # None: could not be measured
+    note: str = ""
+
+    @property
+    def verdict(self) -> str:
+        if self.met is None:
+            return "not measured"
+        return "met" if self.met else "**not met**"
+
+
+def fmt(value: float, digits: int = 3) -> str:
+    """A number with ``digits`` significant digits, plain notation where reasonable."""
+    if value is None or not math.isfinite(value):
+        return "n/a"
+    if value == 0:
+        return "0"
+    if float(value).is_integer() and abs(value) < 1e6:
+        return f"{int(value):,}"
+    mag = math.floor(math.log10(abs(value)))
+    if mag >= 6 or mag <= -4:
+        return f"{value:.{digits - 1}e}"
+    decimals = max(0, digits - 1 - mag)
+    return f"{value:,.{decimals}f}"
+
+
+def load(path: Path) -> SiteConfig:
+    """A site config, without environment overrides."""
+    return load_site(path)
+
+
+def with_horizon(site: SiteConfig, horizon: int) -> SiteConfig:
+    """A copy of ``site`` whose supervisor MPC uses ``horizon``."""
+    copy = site.model_copy(deep=True)
+    if copy.supervisor is None:
+        raise ValueError(f"site {site.name!r} has no supervisor section")
+    copy.supervisor.mpc.horizon = horizon
+    return copy
+
+
+# ----------------------------------------------------------------------------------------------
+# the machine
+# ----------------------------------------------------------------------------------------------
+PACKAGES = ("numpy", "scipy", "osqp", "asyncua", "cvxpy", "do-mpc", "casadi", "clarabel")
+
+
+def cpu_model() -> str:
+    """The CPU model name from /proc/cpuinfo (or the platform's processor string)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return platform.processor() or "unknown"
+    match = re.search(r"^model name\s*:\s*(.+)$", text, re.MULTILINE)
+    return match.group(1).strip() if match else (platform.processor() or "unknown")
+
+
+def versions(names: Sequence[str] = PACKAGES) -> dict[str, str]:
+    """Installed versions of the named distributions ("not installed" when missing)."""
+    out: dict[str, str] = {}
+    for name in names:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def machine() -> dict[str, str]:
+    """What the document's header states about the machine."""
+    load1, load5, _ = os.getloadavg()
+    info = {
+        "CPU": cpu_model(),
+        "cores (os.cpu_count)": str(os.cpu_count()),
+        "cores usable (sched_getaffinity)": str(len(os.sched_getaffinity(0))),
+        "OS": f"{platform.system()} {platform.release()} ({platform.machine()})",
+        "Python": f"{platform.python_implementation()} {platform.python_version()}",
+        "load average at start (1 / 5 min)": f"{load1:.2f} / {load5:.2f}",
+    }
+    try:
+        mem = Path("/proc/meminfo").read_text(encoding="utf-8").splitlines()[0].split()[1]
+        info["memory"] = f"{int(mem) / 2**20:.1f} GiB"
+    except (OSError, IndexError, ValueError):
+        pass
+    return info

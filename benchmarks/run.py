@@ -1,0 +1,185 @@
+"""Run every benchmark side by side and write ``docs/benchmarks.md``.
+
+Usage::
+
+    python -m benchmarks.run              # full run (about 10 minutes on 2 cores)
+    python -m benchmarks.run --quick      # fast pass, writes var/benchmarks-quick.md
+    python -m benchmarks.run --only mpc,cosim --output /tmp/b.md
+
+Sections: ``mpc`` (MPC step time against cvxpy and do-mpc), ``cosim`` (co-simulation speed and
+hot spots), ``stack`` (OPC UA round trip, setpoint-to-action, PLC scan lateness, lock-step speed
+through real processes). Progress goes to stderr; the document is written at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+from benchmarks import cosim, mpc, report, stack
+from benchmarks.common import ROOT, machine, versions
+
+SECTIONS = ("mpc", "cosim", "stack")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """How much of everything to measure."""
+
+    horizons: tuple[int, ...]
+    side_horizons: tuple[int, ...]
+    mpc_duration_s: float
+    cosim_repeats: int
+    reads: int
+    actions_x1: int
+    actions_x20: int
+    lateness_x1_s: float
+    lateness_x20_s: float
+    lockstep_runs: int
+    realtime_x20_s: float
+
+
+FULL = Plan(
+    horizons=(10, 20, 40, 80, 160),
+    side_horizons=(10, 20, 40, 80, 160),
+    mpc_duration_s=1000.0,
+    cosim_repeats=5,
+    reads=1000,
+    actions_x1=40,
+    actions_x20=50,
+    lateness_x1_s=60.0,
+    lateness_x20_s=30.0,
+    lockstep_runs=5,
+    realtime_x20_s=30.0,
+)
+QUICK = Plan(
+    horizons=(10, 40, 160),
+    side_horizons=(10, 40),
+    mpc_duration_s=1000.0,
+    cosim_repeats=2,
+    reads=200,
+    actions_x1=8,
+    actions_x20=10,
+    lateness_x1_s=10.0,
+    lateness_x20_s=10.0,
+    lockstep_runs=1,
+    realtime_x20_s=10.0,
+)
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="fast pass: shorter runs, fewer samples")
+    parser.add_argument(
+        "--output", type=Path, help="document to write (default docs/benchmarks.md, quick: var/)"
+    )
+    parser.add_argument(
+        "--only", default=",".join(SECTIONS), help=f"comma-separated sections among {', '.join(SECTIONS)}"
+    )
+    args = parser.parse_args(argv)
+    only = {s.strip() for s in args.only.split(",") if s.strip()}
+    unknown = only - set(SECTIONS)
+    if unknown:
+        parser.error(f"unknown section(s): {', '.join(sorted(unknown))}")
+    plan = QUICK if args.quick else FULL
+    output: Path = args.output or (
+        ROOT / "var" / "benchmarks-quick.md" if args.quick else ROOT / "docs" / "benchmarks.md"
+    )
+    # The benchmark's own OPC UA clients retry connections while tiers start: keep asyncua quiet.
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("asyncua").setLevel(logging.CRITICAL)
+    logging.getLogger("tanklab.ua").setLevel(logging.ERROR)
+
+    started = time.perf_counter()
+    command = "python -m benchmarks.run" + (" --quick" if args.quick else "")
+    if only != set(SECTIONS):
+        command += f" --only {','.join(s for s in SECTIONS if s in only)}"
+    rep = report.Report(
+        date=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        command="make bench" if command == "python -m benchmarks.run" else command,
+        quick=args.quick,
+        machine=machine(),
+        versions=versions(),
+        settings={
+            "MPC horizons": ", ".join(map(str, plan.horizons))
+            + f" (side by side: {', '.join(map(str, plan.side_horizons))})",
+            "MPC closed loop": f"{plan.mpc_duration_s:g} s ({plan.mpc_duration_s / 2.5:.0f} samples)",
+            "co-simulation repeats": str(plan.cosim_repeats),
+            "reads": str(plan.reads),
+            "setpoint trials": f"{plan.actions_x1} at speed 1, {plan.actions_x20} at speed 20",
+            "lateness windows": f"{plan.lateness_x1_s:g} s at speed 1, {plan.lateness_x20_s:g} s at speed 20",
+            "lock-step runs": str(plan.lockstep_runs),
+        },
+    )
+    comparators = [mpc.CVXPY_OSQP, mpc.CVXPY_OSQP_TIGHT, mpc.CVXPY_DEFAULT, mpc.DOMPC]
+
+    def section(name: str, body: Callable[[], None]) -> None:
+        """Run one section; a failure is reported in the document, and the others still run."""
+        if name not in only:
+            return
+        try:
+            body()
+        except Exception as e:
+            rep.errors.append(f"section {name} failed: {type(e).__name__}: {e}")
+            _log(f"section {name} FAILED:\n{traceback.format_exc()}")
+
+    def run_mpc() -> None:
+        _log("MPC, the controller alone:")
+        rep.mpc_alone = mpc.run(plan.horizons, plan.mpc_duration_s, [], _log)
+        _log("MPC, side by side with cvxpy and do-mpc:")
+        rep.mpc_side = mpc.run(plan.side_horizons, plan.mpc_duration_s, comparators, _log)
+        profile_np = report.GOAL_NP if report.GOAL_NP in plan.horizons else plan.horizons[0]
+        rep.mpc_profile = mpc.profile_steps(profile_np, plan.mpc_duration_s)
+        rep.mpc_profile_np = profile_np
+
+    def run_cosim() -> None:
+        _log("co-simulation:")
+        rep.cosim = cosim.run(plan.cosim_repeats, _log)
+
+    def run_stack() -> None:
+        _log("processes:")
+        rep.stack = asyncio.run(
+            stack.run_all(
+                ROOT / "var" / "bench",
+                reads=plan.reads,
+                actions_x1=plan.actions_x1,
+                actions_x20=plan.actions_x20,
+                lateness_x1_s=plan.lateness_x1_s,
+                lateness_x20_s=plan.lateness_x20_s,
+                lockstep_runs=plan.lockstep_runs,
+                realtime_x20_s=plan.realtime_x20_s,
+                log=_log,
+            )
+        )
+
+    section("mpc", run_mpc)
+    section("cosim", run_cosim)
+    section("stack", run_stack)
+    rep.total_wall_s = time.perf_counter() - started
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(report.render(rep), encoding="utf-8")
+    _log(f"wrote {output} ({rep.total_wall_s / 60:.1f} min)")
+    for goal in report.goals(rep):
+        _log(f"  {goal.verdict:>14s}  {goal.name}: {goal.measured} (target {goal.target})")
+    errors = list(rep.errors)
+    if rep.stack is not None:
+        errors += rep.stack.errors + [f"lock-step run: {r.error}" for r in rep.stack.lockstep if r.error]
+    for err in errors:
+        _log(f"  error: {err}")
+    return 1 if errors else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
