@@ -37,6 +37,21 @@ class ManualAutoOutput:
     def _clamp(self, value: float) -> float:
         raise NotImplementedError
 
+    @property
+    def mv(self) -> float:
+        """Applied MV u(k-1) [MV unit]."""
+        return self._u
+
+    @property
+    def mode(self) -> LoopMode:
+        """Current mode."""
+        return self._mode
+
+    @property
+    def manual_mv(self) -> float:
+        """Held manual value [MV unit]."""
+        return self._manual
+
     def set_mode(self, mode: LoopMode, mv: float | None = None) -> None:
         """Switch between MANUAL and AUTO bumplessly.
 

@@ -291,21 +291,6 @@ class Mrac(ManualAutoOutput):
         return float(self._wn2 * self._model.x[0])
 
     @property
-    def mv(self) -> float:
-        """Applied MV u(k-1) [MV unit]."""
-        return self._u
-
-    @property
-    def mode(self) -> LoopMode:
-        """Current mode."""
-        return self._mode
-
-    @property
-    def manual_mv(self) -> float:
-        """Held manual value [MV unit]."""
-        return self._manual
-
-    @property
     def integral(self) -> float:
         """PI law's integral I [PV unit s]."""
         return self._integral

@@ -178,21 +178,6 @@ class NlPi(ManualAutoOutput):
         return self._gains
 
     @property
-    def mv(self) -> float:
-        """Applied MV u(k-1) [MV unit]."""
-        return self._u
-
-    @property
-    def mode(self) -> LoopMode:
-        """Current mode."""
-        return self._mode
-
-    @property
-    def manual_mv(self) -> float:
-        """Held manual value [MV unit]."""
-        return self._manual
-
-    @property
     def integral(self) -> float:
         """Integrator state I [m s] (meaningful in AUTO)."""
         return self._integral
