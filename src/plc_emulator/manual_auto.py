@@ -13,6 +13,16 @@ from tanklab.checks import finite
 from tanklab.enums import LoopMode
 
 
+def check_limits(u_min: float, u_max: float, initial_mv: float) -> None:
+    """Output limits u_min < u_max, both finite, and u(-1) = initial_mv inside them."""
+    lo, hi = finite("u_min", u_min), finite("u_max", u_max)
+    if lo >= hi:
+        raise ValueError(f"u_min must be < u_max, got [{lo}, {hi}]")
+    u0 = finite("initial_mv", initial_mv)
+    if not lo <= u0 <= hi:
+        raise ValueError(f"initial_mv must lie within [u_min, u_max] = [{lo}, {hi}], got {u0}")
+
+
 def check_two_modes(mode: LoopMode, what: str = "mode") -> LoopMode:
     """MANUAL or AUTO; ``TypeError`` for a non-LoopMode, ``ValueError`` for REMOTE."""
     if not isinstance(mode, LoopMode):

@@ -53,7 +53,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from plc_emulator.manual_auto import ManualAutoOutput, check_two_modes
+from plc_emulator.manual_auto import ManualAutoOutput, check_limits, check_two_modes
 from tanklab.checks import finite as _finite
 from tanklab.checks import positive as _positive
 from tanklab.checks import real as _real
@@ -190,12 +190,7 @@ class MracConfig:
                 )
         if self.law == "pi" and lo[1] < 0.0:
             raise ValueError("for the 'pi' law theta_min[1] (ki) must be >= 0")
-        u_lo, u_hi = _finite("u_min", self.u_min), _finite("u_max", self.u_max)
-        if u_lo >= u_hi:
-            raise ValueError(f"u_min must be < u_max, got [{u_lo}, {u_hi}]")
-        u0 = _finite("initial_mv", self.initial_mv)
-        if not u_lo <= u0 <= u_hi:
-            raise ValueError(f"initial_mv must lie within [u_min, u_max] = [{u_lo}, {u_hi}], got {u0}")
+        check_limits(self.u_min, self.u_max, self.initial_mv)
         check_two_modes(self.initial_mode, "initial_mode")
         if not isinstance(self.freeze_when_saturated, bool):
             raise TypeError("freeze_when_saturated must be a bool")

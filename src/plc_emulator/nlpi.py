@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plc_emulator.manual_auto import ManualAutoOutput, check_two_modes
+from plc_emulator.manual_auto import ManualAutoOutput, check_limits, check_two_modes
 from plc_emulator.tuning import NlPiGains, nlpi_gains
 from tanklab.checks import finite as _finite
 from tanklab.checks import positive as _positive
@@ -59,15 +59,6 @@ __all__ = [
     "NlPiConfig",
     "NlPiStepResult",
 ]
-
-
-def _check_limits(u_min: float, u_max: float, initial_mv: float) -> None:
-    lo, hi = _finite("u_min", u_min), _finite("u_max", u_max)
-    if lo >= hi:
-        raise ValueError(f"u_min must be < u_max, got [{lo}, {hi}]")
-    u0 = _finite("initial_mv", initial_mv)
-    if not lo <= u0 <= hi:
-        raise ValueError(f"initial_mv must lie within [u_min, u_max] = [{lo}, {hi}], got {u0}")
 
 
 @dataclass(frozen=True)
@@ -100,7 +91,7 @@ class NlPiConfig:
         _positive("ts_s", self.ts_s)
         if not isinstance(self.gains, NlPiGains):
             raise TypeError(f"gains must be a NlPiGains, got {type(self.gains).__name__}")
-        _check_limits(self.u_min, self.u_max, self.initial_mv)
+        check_limits(self.u_min, self.u_max, self.initial_mv)
         check_two_modes(self.initial_mode)
 
 
@@ -349,7 +340,7 @@ class AdaptiveNlPiConfig:
         a0 = _finite("a_prime0", self.a_prime0)
         if not 0.0 <= a0 <= a_max:
             raise ValueError(f"a_prime0 must lie within [0, a_prime_max] = [0, {a_max}], got {a0}")
-        _check_limits(self.u_min, self.u_max, self.initial_mv)
+        check_limits(self.u_min, self.u_max, self.initial_mv)
         check_two_modes(self.initial_mode)
         _positive("memory_s", self.memory_s)
         if isinstance(self.min_updates, bool) or not isinstance(self.min_updates, int):
