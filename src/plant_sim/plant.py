@@ -13,7 +13,7 @@ until the next command.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -151,9 +151,7 @@ class PlantSimulator:
         cmd = self._commanded
         if self.watchdog_tripped and self.safe_state == "off":
             cmd = self.net.pump_cmd_min.copy()
-        self.inputs = PlantInputs(
-            cmd.copy(), self.inputs.valve_openings, self.inputs.leak_openings, self.inputs.disturbances_m3_s
-        )
+        self.inputs = replace(self.inputs, pump_commands=cmd.copy())
 
     def _opening(self, value: float, what: str) -> float:
         v = self._finite(value, what)
@@ -167,9 +165,7 @@ class PlantSimulator:
         v = self._opening(opening, f"{valve} opening")
         op = self.inputs.valve_openings.copy()
         op[k] = v
-        self.inputs = PlantInputs(
-            self.inputs.pump_commands, op, self.inputs.leak_openings, self.inputs.disturbances_m3_s
-        )
+        self.inputs = replace(self.inputs, valve_openings=op)
 
     def set_leak(self, tank: str, opening: float) -> None:
         """Set the leak valve opening 0..1 of tank ``tank``."""
@@ -177,9 +173,7 @@ class PlantSimulator:
         v = self._opening(opening, f"{tank} leak opening")
         op = self.inputs.leak_openings.copy()
         op[i] = v
-        self.inputs = PlantInputs(
-            self.inputs.pump_commands, self.inputs.valve_openings, op, self.inputs.disturbances_m3_s
-        )
+        self.inputs = replace(self.inputs, leak_openings=op)
 
     def set_disturbance(self, tank: str, flow_m3_s: float) -> None:
         """Set the extra inflow (+) or outflow (-) of tank ``tank`` [m^3/s]."""
@@ -190,9 +184,7 @@ class PlantSimulator:
             raise ValueError(f"{tank} disturbance {v:g} outside [-{limit:g}, {limit:g}]")
         d = self.inputs.disturbances_m3_s.copy()
         d[i] = v
-        self.inputs = PlantInputs(
-            self.inputs.pump_commands, self.inputs.valve_openings, self.inputs.leak_openings, d
-        )
+        self.inputs = replace(self.inputs, disturbances_m3_s=d)
 
     def set_fault(self, transmitter: str, fault: SensorFault | int, value: float | None = None) -> None:
         """Inject a fault on ``LT{i}``; ``value`` is the bias [m] or drift rate [m/s]."""
