@@ -15,6 +15,25 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def free_base_port() -> int:
+    """N such that N, N+1 and N+2 are free on 127.0.0.1 (``--base-port N``), below the ephemeral
+    port range so that no client socket of another test takes one of them meanwhile."""
+    for base in range(21000, 31000, 7):
+        socks: list[socket.socket] = []
+        try:
+            for k in range(3):
+                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+                socks.append(s)
+                s.bind(("127.0.0.1", base + k))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise RuntimeError("no three consecutive free ports")
+
+
 async def wait_until(
     condition: Callable[[], Awaitable[bool] | bool],
     deadline_s: float,

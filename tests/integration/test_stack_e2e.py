@@ -10,7 +10,6 @@ from __future__ import annotations
 import asyncio
 import os
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -19,30 +18,12 @@ import pytest
 import yaml
 from asyncua import Client
 
-from helpers import ROOT, TierProcess, wait_until
+from helpers import ROOT, TierProcess, free_base_port, wait_until
 from tanklab.enums import GainSource, LoopMode
 from tanklab.ua import resolve
 
 CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
 pytestmark = pytest.mark.process
-
-
-def free_base_port() -> int:
-    """N such that N, N+1, N+2 are free (below the ephemeral range)."""
-    for base in range(21000, 31000, 7):
-        socks = []
-        try:
-            for k in range(3):
-                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-                socks.append(s)
-                s.bind(("127.0.0.1", base + k))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError("no three consecutive free ports")
 
 
 def tankctl(*args: str, base: int) -> subprocess.CompletedProcess[str]:

@@ -18,7 +18,6 @@ import os
 import re
 import select
 import signal
-import socket
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -31,7 +30,7 @@ import typer
 from asyncua import Client
 from typer.testing import CliRunner
 
-from helpers import ROOT, free_port, wait_until
+from helpers import ROOT, free_base_port, free_port, wait_until
 from tankctl.ops import TIERS, UsageError, level_bar, register, resolve_endpoints, sparkline
 from tanklab.config import load_site
 from tanklab.enums import LoopMode, SupervisorMode
@@ -48,24 +47,6 @@ P1_MAX = 1.2e-4
 # --------------------------------------------------------------------------------------------
 # The stack
 # --------------------------------------------------------------------------------------------
-
-
-def _bindable(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
-def free_base_port() -> int:
-    """N such that N, N+1 and N+2 were free a moment ago (for ``--base-port N``)."""
-    for _ in range(100):
-        n = free_port()
-        if n + 2 <= 65535 and all(_bindable(n + k) for k in (1, 2)):
-            return n
-    raise AssertionError("no three consecutive free ports found")
 
 
 def _start(*args: str, deadline_s: float = 30.0) -> subprocess.Popen[str]:
