@@ -27,3 +27,12 @@ class IntegrationError(TanklabError, RuntimeError):
 
 class LinkError(TanklabError, ConnectionError):
     """An OPC UA endpoint could not be reached or answered with an error."""
+
+
+class SecurityError(TanklabError, ValueError):
+    """A PKI, users or credentials file is invalid or unsafe, or a security operation was refused.
+
+    The message is one line naming the file and the rule, e.g.
+    ``~/.config/tanklab/credentials: permissions 0644: must be 0600 (chmod 600 FILE)``; it never
+    contains a password or key material.
+    """

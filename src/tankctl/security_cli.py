@@ -1,0 +1,280 @@
+"""``tankctl pki`` and ``tankctl user``: the PKI and the users file of a security home.
+
+::
+
+    tankctl pki init [--home DIR] [--host HOST ...] [--days N] [--force]
+    tankctl pki trust FILE [--home DIR]          add an external certificate (DER or PEM)
+    tankctl pki revoke FILE [--home DIR]         put a CA-issued certificate on the CRL
+    tankctl pki show [--home DIR] [--json]
+    tankctl user add NAME --role ROLE [--home DIR] [--password-stdin] [--replace]
+    tankctl user list [--home DIR]
+    tankctl user remove NAME [--home DIR]
+
+``--home`` defaults to ``$TANKLAB_HOME``, else ``$XDG_CONFIG_HOME/tanklab``, else
+``~/.config/tanklab``. ``user add`` reads the password from stdin (``--password-stdin``, one
+line), else from ``TANKLAB_NEW_PASSWORD``, else prompts twice without echo; no command prints a
+password or key material.
+
+Exit codes: 0 done; 2 a bad argument, an invalid or unsafe file, a refused operation; every
+failure is one line ``tankctl: ...`` on stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any, NoReturn, TypeVar
+
+import typer
+from typer.core import TyperCommand
+
+from tanklab.errors import TanklabError
+from tanklab.home import SecurityHome, default_home
+from tanklab.pki import DEFAULT_DAYS, DEFAULT_HOSTS, IDENTITIES, Pki, describe, init_pki, revoke, trust
+from tanklab.users import LOGIN_ROLES, UsersFile
+
+__all__ = ["ENV_NEW_PASSWORD", "pki_app", "register", "user_app"]
+
+ENV_NEW_PASSWORD = "TANKLAB_NEW_PASSWORD"
+"""Environment variable ``user add`` takes the new password from (when not --password-stdin)."""
+
+_T = TypeVar("_T")
+
+
+class _OneLineUsage(TyperCommand):
+    """Usage errors (missing argument, unknown option) as one line on stderr, exit code 2."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except typer.TyperException as e:  # typer's vendored click UsageError and subclasses
+            names: list[str] = []
+            c = ctx
+            while c is not None and c.parent is not None:
+                names.append(c.info_name or "")
+                c = c.parent
+            typer.echo(f"tankctl {' '.join(reversed(names))}: {e.format_message()}", err=True)
+            raise typer.Exit(getattr(e, "exit_code", 2)) from None
+
+
+pki_app = typer.Typer(
+    help="The PKI: CA, application certificates, trusted certificates, CRL.", no_args_is_help=True
+)
+user_app = typer.Typer(help="Users who log in with a name and password.", no_args_is_help=True)
+
+HomeOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--home",
+        help="Security home (env TANKLAB_HOME; default $XDG_CONFIG_HOME/tanklab or ~/.config/tanklab).",
+    ),
+]
+
+
+def _fail(message: str) -> NoReturn:
+    typer.echo(f"tankctl: {message}", err=True)
+    raise typer.Exit(2)
+
+
+def _guard(action: Callable[[], _T]) -> _T:
+    """Run ``action``; a tanklab error or an OS error becomes one line and exit code 2."""
+    try:
+        return action()
+    except TanklabError as e:
+        _fail(str(e))
+    except OSError as e:
+        where = f"{e.filename}: " if e.filename else ""
+        _fail(f"{where}{e.strerror or e}")
+
+
+def _home(home: Path | None) -> SecurityHome:
+    return SecurityHome(home if home is not None else default_home())
+
+
+def _writable_home(home: Path | None) -> SecurityHome:
+    """The security home, its root created 0700 when missing (for commands that write)."""
+    sec = _home(home)
+    _guard(sec.ensure)
+    return sec
+
+
+def _stdin_is_terminal() -> bool:
+    return typer.get_text_stream("stdin").isatty()
+
+
+# --------------------------------------------------------------------------------------------
+# pki
+# --------------------------------------------------------------------------------------------
+
+
+@pki_app.command("init", cls=_OneLineUsage)
+def pki_init(
+    home: HomeOpt = None,
+    host: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--host", help="DNS name or IP the servers are reached at (repeat; default localhost, 127.0.0.1)."
+        ),
+    ] = None,
+    days: Annotated[int, typer.Option(help="Validity of the certificates [days].")] = DEFAULT_DAYS,
+    force: Annotated[bool, typer.Option(help="Replace an existing CA and all its certificates.")] = False,
+) -> None:
+    """Create the CA and the plant, plc, supervisor and cli certificates (kept if present)."""
+    if days <= 0:
+        _fail(f"pki init: --days must be a positive number of days, got {days}")
+    pki = _writable_home(home).pki
+    if pki.exists() and not force:
+        typer.echo(f"PKI at {pki.root}: kept (complete; --force replaces it)")
+        return
+    hosts = tuple(host) if host else DEFAULT_HOSTS
+    _guard(lambda: init_pki(pki.root, hosts=hosts, days=days, force=force))
+    typer.echo(f"PKI at {pki.root}: CA {pki.ca_cert}")
+    typer.echo(f"certificates in {pki.own_dir} for {', '.join(IDENTITIES)} (hosts {', '.join(hosts)})")
+    typer.echo(f"private keys in {pki.private_dir} (0600); trusted: {pki.trusted_dir}; CRL: {pki.crl_file}")
+
+
+@pki_app.command("trust", cls=_OneLineUsage)
+def pki_trust(
+    file: Annotated[Path, typer.Argument(help="Certificate to trust (DER or PEM).")],
+    home: HomeOpt = None,
+) -> None:
+    """Trust an external certificate (or CA): peers presenting it, or chaining to it, are accepted."""
+    pki = _writable_home(home).pki
+    stored = _guard(lambda: trust(pki, file))
+    row = _guard(lambda: next(r for r in describe(pki) if r["path"] == str(stored)))
+    typer.echo(f"trusted {file} as {stored} (SHA-1 {row['sha1']}, {row['subject']})")
+
+
+@pki_app.command("revoke", cls=_OneLineUsage)
+def pki_revoke(
+    file: Annotated[Path, typer.Argument(help="A certificate issued by the tanklab CA.")],
+    home: HomeOpt = None,
+) -> None:
+    """Put a CA-issued certificate on the CA's revocation list."""
+    pki = _home(home).pki
+    _guard(lambda: revoke(pki, file))
+    typer.echo(f"revoked {file}: CRL {pki.crl_file} (servers reload it on restart)")
+
+
+def _table(rows: list[dict[str, Any]]) -> list[str]:
+    """Aligned text lines: kind, name, not_after, revoked, uri, sha1, subject."""
+    head = ("KIND", "NAME", "NOT AFTER", "REVOKED", "URI", "SHA-1", "SUBJECT")
+    cells = [
+        (
+            r["kind"],
+            r["name"],
+            r["not_after"][:19],
+            "yes" if r["revoked"] else "no",
+            r["uri"] or "-",
+            r["sha1"],
+            r["subject"],
+        )
+        for r in rows
+    ]
+    widths = [max(len(c[i]) for c in [head, *cells]) for i in range(len(head))]
+    return ["  ".join(c[i].ljust(widths[i]) for i in range(len(head))).rstrip() for c in [head, *cells]]
+
+
+@pki_app.command("show", cls=_OneLineUsage)
+def pki_show(
+    home: HomeOpt = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print a JSON list, one object per certificate.")
+    ] = False,
+) -> None:
+    """List own and trusted certificates: URI, expiry, SHA-1 thumbprint, revoked."""
+    pki: Pki = _home(home).pki
+    if not pki.root.is_dir():
+        _fail(f"{pki.root}: no PKI (run `tankctl pki init`)")
+    rows = _guard(lambda: describe(pki))
+    if as_json:
+        typer.echo(json.dumps(rows, indent=2))
+        return
+    for line in _table(rows):
+        typer.echo(line)
+
+
+# --------------------------------------------------------------------------------------------
+# user
+# --------------------------------------------------------------------------------------------
+
+
+def _new_password(from_stdin: bool) -> str:
+    """The new password: stdin (one line), else $TANKLAB_NEW_PASSWORD, else a hidden prompt, twice."""
+    if from_stdin:
+        line = typer.get_text_stream("stdin").readline()
+        password = line.rstrip("\r\n")
+        if not password:
+            _fail("user add: --password-stdin: no password on stdin")
+        return password
+    env = os.environ.get(ENV_NEW_PASSWORD)
+    if env:
+        return env
+    if not _stdin_is_terminal():  # getpass would fall back to reading with echo
+        _fail(f"user add: no password: stdin is not a terminal (use --password-stdin or {ENV_NEW_PASSWORD})")
+    try:
+        answer = typer.prompt("Password", hide_input=True, confirmation_prompt=True)
+    except typer.Abort:
+        _fail(f"user add: no password (use --password-stdin or {ENV_NEW_PASSWORD})")
+    return str(answer)
+
+
+@user_app.command("add", cls=_OneLineUsage)
+def user_add(
+    name: Annotated[str, typer.Argument(help="User name: [A-Za-z0-9_.-], 1 to 64 characters.")],
+    role: Annotated[str, typer.Option("--role", help="Observer, Operator or Engineer.")],
+    home: HomeOpt = None,
+    password_stdin: Annotated[
+        bool, typer.Option("--password-stdin", help="Read the password from stdin (one line).")
+    ] = False,
+    replace: Annotated[bool, typer.Option(help="Replace an existing user's role and password.")] = False,
+) -> None:
+    """Add a user with a login role; the password is never echoed."""
+    matches = [r for r in LOGIN_ROLES if r.value.lower() == role.lower()]
+    if not matches:
+        _fail(f"user add: --role must be one of {', '.join(r.value for r in LOGIN_ROLES)}, got {role!r}")
+    path = _writable_home(home).users_file
+    users = _guard(lambda: UsersFile.load(path))
+    if users.get(name) is not None and not replace:
+        _fail(f"{path}: user {name!r} exists (use --replace to change it)")
+    password = _new_password(password_stdin)
+    existed = users.get(name) is not None
+    _guard(lambda: users.add(name, matches[0], password, replace=replace))
+    _guard(users.save)
+    typer.echo(f"{'replaced' if existed else 'added'} user {name} ({matches[0].value}) in {path}")
+
+
+@user_app.command("list", cls=_OneLineUsage)
+def user_list(home: HomeOpt = None) -> None:
+    """List users and their roles."""
+    path = _home(home).users_file
+    users = _guard(lambda: UsersFile.load(path))
+    if not users.names():
+        typer.echo(f"no users in {path}")
+        return
+    width = max(len(n) for n in users.names())
+    for name in users.names():
+        record = users.get(name)
+        assert record is not None
+        typer.echo(f"{name.ljust(width)}  {record.role.value}")
+
+
+@user_app.command("remove", cls=_OneLineUsage)
+def user_remove(
+    name: Annotated[str, typer.Argument(help="User to remove.")],
+    home: HomeOpt = None,
+) -> None:
+    """Remove a user."""
+    path = _home(home).users_file
+    users = _guard(lambda: UsersFile.load(path))
+    _guard(lambda: users.remove(name))
+    _guard(users.save)
+    typer.echo(f"removed user {name} from {path}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``pki`` and ``user`` groups to the main ``tankctl`` app."""
+    app.add_typer(pki_app, name="pki")
+    app.add_typer(user_app, name="user")

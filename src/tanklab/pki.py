@@ -1,0 +1,599 @@
+"""The tanklab PKI: one local CA, an application certificate per identity, a trust list, a CRL.
+
+Layout under ``root`` (directories 0700, private keys 0600 unencrypted PKCS#8 PEM, certs DER)::
+
+    ca/ca.der              the tanklab CA: self-signed, BasicConstraints cA=true (critical),
+    ca/ca.pem              KeyUsage keyCertSign + cRLSign; its private key
+    own/{name}.der         application certificates, one per IDENTITY (plant, plc, supervisor,
+    private/{name}.pem     cli) plus any issued later; their private keys
+    trusted/               what a peer must chain to: the CA's copy (tanklab-ca.der) and external
+                           certificates added by :func:`trust` (``{CN}_{sha1}.der``)
+    crl/ca.crl.der         the CA's revocation list, signed by the CA
+
+These are the locations asyncua's ``TrustStore([trusted], [crl])`` reads: a peer is trusted
+when its certificate chains to a certificate in ``trusted/`` (cryptography's client verifier)
+and revoked when its serial is on a CRL in ``crl/``.
+
+Every application certificate carries what OPC UA Part 6 (and asyncua's CertificateValidator)
+checks: SubjectAltName with the ApplicationUri plus DNSName / IPAddress entries for the hosts,
+KeyUsage digitalSignature, contentCommitment (nonRepudiation), keyEncipherment,
+dataEncipherment; ExtendedKeyUsage serverAuth + clientAuth; BasicConstraints cA=false; Subject
+and Authority KeyIdentifiers. Keys are RSA 2048, signatures RSA PKCS#1 v1.5 with SHA-256 (the
+Basic256Sha256 and Aes128_Sha256_RsaOaep policies' certificate requirements).
+
+This module reads the wall clock (certificate validity starts now) and writes files; it never
+logs or prints key material.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+from cryptography import x509
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from tanklab.errors import SecurityError
+from tanklab.tags import APPLICATION_URIS
+
+__all__ = [
+    "CA_DAYS",
+    "DEFAULT_DAYS",
+    "DEFAULT_HOSTS",
+    "IDENTITIES",
+    "KEY_BITS",
+    "Pki",
+    "describe",
+    "init_pki",
+    "issue",
+    "read_certificate",
+    "revoke",
+    "self_signed",
+    "trust",
+    "trusted_name",
+]
+
+IDENTITIES = ("plant", "plc", "supervisor", "cli")
+"""The application identities :func:`init_pki` issues a certificate for (keys of APPLICATION_URIS)."""
+
+DEFAULT_HOSTS = ("localhost", "127.0.0.1")
+"""Hosts written into every certificate's SubjectAltName (DNSName, or IPAddress when it parses)."""
+
+DEFAULT_DAYS = 825
+"""Validity of an application certificate and the CRL's nextUpdate horizon [days]."""
+
+CA_DAYS = 3650
+"""Validity of the CA certificate [days] (at least that of the certificates it issues)."""
+
+KEY_BITS = 2048
+"""RSA modulus size [bits] of every key."""
+
+CLOCK_SKEW = timedelta(minutes=5)
+"""notBefore is set this far in the past so that a peer whose clock lags still accepts a new cert."""
+
+CA_TRUST_NAME = "tanklab-ca.der"
+"""File name of the CA's copy in ``trusted/``."""
+
+_ORGANIZATION = "tanklab"
+_SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+@dataclass(frozen=True)
+class Pki:
+    """Paths of a PKI rooted at ``root`` (see the module docstring); build it with :meth:`at`."""
+
+    root: Path
+    ca_cert: Path
+    ca_key: Path
+    trusted_dir: Path
+    crl_dir: Path
+
+    @classmethod
+    def at(cls, root: Path) -> Pki:
+        """The PKI layout under ``root`` (nothing is read or written)."""
+        root = Path(root)
+        return cls(
+            root=root,
+            ca_cert=root / "ca" / "ca.der",
+            ca_key=root / "ca" / "ca.pem",
+            trusted_dir=root / "trusted",
+            crl_dir=root / "crl",
+        )
+
+    @property
+    def own_dir(self) -> Path:
+        """Directory of the application certificates (DER)."""
+        return self.root / "own"
+
+    @property
+    def private_dir(self) -> Path:
+        """Directory of the application private keys (PEM, 0600)."""
+        return self.root / "private"
+
+    @property
+    def crl_file(self) -> Path:
+        """The CA's revocation list (DER)."""
+        return self.crl_dir / "ca.crl.der"
+
+    def cert_path(self, name: str) -> Path:
+        """Application certificate of ``name``: ``root/own/{name}.der``."""
+        return self.own_dir / f"{_checked_name(name)}.der"
+
+    def key_path(self, name: str) -> Path:
+        """Private key of ``name``: ``root/private/{name}.pem`` (unencrypted PKCS#8 PEM, 0600)."""
+        return self.private_dir / f"{_checked_name(name)}.pem"
+
+    def exists(self) -> bool:
+        """True when the CA (cert and key) and every IDENTITY's cert and key are present."""
+        files = [self.ca_cert, self.ca_key]
+        for name in IDENTITIES:
+            files += [self.cert_path(name), self.key_path(name)]
+        return all(f.is_file() for f in files)
+
+
+# --------------------------------------------------------------------------------------------
+# Pure helpers: names, extensions, encodings
+# --------------------------------------------------------------------------------------------
+
+
+def _checked_name(name: str) -> str:
+    if not _NAME.match(name):
+        raise SecurityError(f"certificate name {name!r}: must match [A-Za-z0-9_.-]{{1,64}}")
+    return name
+
+
+def _subject(common_name: str) -> x509.Name:
+    return x509.Name(
+        [
+            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
+            x509.NameAttribute(NameOID.ORGANIZATION_NAME, _ORGANIZATION),
+        ]
+    )
+
+
+def _general_names(uri: str, hosts: Sequence[str]) -> list[x509.GeneralName]:
+    """SubjectAltName entries: the ApplicationUri, then one DNSName or IPAddress per host."""
+    if not uri or any(c.isspace() for c in uri):
+        raise SecurityError(f"application URI {uri!r}: must be a non-empty URI without spaces")
+    names: list[x509.GeneralName] = [x509.UniformResourceIdentifier(uri)]
+    for host in hosts:
+        if not host or any(c.isspace() for c in host):
+            raise SecurityError(f"host {host!r}: must be a DNS name or an IP address")
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            try:
+                names.append(x509.DNSName(host))
+            except ValueError as e:  # non-ASCII names
+                raise SecurityError(f"host {host!r}: must be a DNS name or an IP address") from e
+    return names
+
+
+def _application_extensions(
+    builder: x509.CertificateBuilder,
+    uri: str,
+    hosts: Sequence[str],
+    public_key: rsa.RSAPublicKey,
+    issuer_key: rsa.RSAPublicKey,
+) -> x509.CertificateBuilder:
+    """The OPC UA application-instance extensions (see the module docstring)."""
+    return (
+        builder.add_extension(x509.SubjectAlternativeName(_general_names(uri, hosts)), critical=False)
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=True,
+                content_commitment=True,
+                key_encipherment=True,
+                data_encipherment=True,
+                key_agreement=False,
+                key_cert_sign=False,
+                crl_sign=False,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .add_extension(
+            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+            critical=False,
+        )
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(public_key), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(issuer_key), critical=False)
+    )
+
+
+def _validity(
+    now: datetime, days: int, not_before: datetime | None, not_after: datetime | None
+) -> tuple[datetime, datetime]:
+    """(notBefore, notAfter): now - CLOCK_SKEW .. now + days, each replaceable."""
+    if days <= 0:
+        raise SecurityError(f"days: must be a positive number of days, got {days}")
+    start = not_before if not_before is not None else now - CLOCK_SKEW
+    end = not_after if not_after is not None else now + timedelta(days=days)
+    if end <= start:
+        raise SecurityError(f"validity: not_after {end.isoformat()} is not after {start.isoformat()}")
+    return start, end
+
+
+def _fingerprint(cert: x509.Certificate) -> str:
+    """SHA-1 thumbprint as 40 lowercase hex digits (what OPC UA calls the certificate thumbprint)."""
+    return cert.fingerprint(hashes.SHA1()).hex()  # a thumbprint (OPC UA names files by it), not a signature
+
+
+def _common_name(cert: x509.Certificate) -> str:
+    attrs = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+    value = attrs[0].value if attrs else ""
+    return value if isinstance(value, str) else value.decode("utf-8", "replace")
+
+
+def _uri(cert: x509.Certificate) -> str | None:
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return None
+    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
+    return uris[0] if uris else None
+
+
+def _key_pem(key: rsa.RSAPrivateKey) -> bytes:
+    return key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------------------------
+
+
+def _now() -> datetime:
+    return datetime.now(UTC)
+
+
+def _mkdir(path: Path) -> None:
+    """Create ``path`` (and parents) and make ``path`` itself 0700."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    os.chmod(path, 0o700)
+
+
+def _write(path: Path, data: bytes, mode: int) -> None:
+    """Write atomically: a new file created with ``mode`` (never wider, even briefly), then renamed."""
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, mode)  # the umask may have narrowed it; never widened beyond mode
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _write_cert(path: Path, cert: x509.Certificate) -> None:
+    _write(path, cert.public_bytes(serialization.Encoding.DER), 0o644)
+
+
+def _write_key(path: Path, key: rsa.RSAPrivateKey) -> None:
+    _write(path, _key_pem(key), 0o600)
+
+
+def read_certificate(file: Path) -> x509.Certificate:
+    """Load a certificate from a DER or PEM file; anything else is a :class:`SecurityError`."""
+    try:
+        data = Path(file).read_bytes()
+    except OSError as e:
+        raise SecurityError(f"{file}: cannot read: {e.strerror or e}") from None
+    try:
+        if b"-----BEGIN" in data:
+            return x509.load_pem_x509_certificate(data)
+        return x509.load_der_x509_certificate(data)
+    except ValueError:
+        raise SecurityError(f"{file}: not an X.509 certificate (DER or PEM)") from None
+
+
+def _read_ca(pki: Pki) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
+    if not (pki.ca_cert.is_file() and pki.ca_key.is_file()):
+        raise SecurityError(f"{pki.root}: no tanklab CA (run `tankctl pki init`)")
+    cert = read_certificate(pki.ca_cert)
+    try:
+        key = serialization.load_pem_private_key(pki.ca_key.read_bytes(), password=None)
+    except (OSError, ValueError, TypeError):
+        raise SecurityError(f"{pki.ca_key}: not a readable unencrypted PEM private key") from None
+    if not isinstance(key, rsa.RSAPrivateKey):
+        raise SecurityError(f"{pki.ca_key}: not an RSA private key")
+    return cert, key
+
+
+def _new_key() -> rsa.RSAPrivateKey:
+    return rsa.generate_private_key(public_exponent=65537, key_size=KEY_BITS)
+
+
+# --------------------------------------------------------------------------------------------
+# CA, certificates, CRL
+# --------------------------------------------------------------------------------------------
+
+
+def _make_ca(now: datetime, days: int) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
+    key = _new_key()
+    name = _subject("tanklab CA")
+    start, end = _validity(now, max(days, CA_DAYS), None, None)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(end)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=False,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=True,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(key.public_key()), critical=False)
+        .sign(key, hashes.SHA256())
+    )
+    return cert, key
+
+
+def _application_cert(
+    name: str,
+    uri: str,
+    hosts: Sequence[str],
+    start: datetime,
+    end: datetime,
+    issuer: tuple[x509.Certificate, rsa.RSAPrivateKey] | None,
+) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
+    """An application certificate signed by ``issuer`` (CA cert, CA key), or self-signed if None."""
+    key = _new_key()
+    subject = _subject(f"tanklab {name}")
+    issuer_name, signer = (issuer[0].subject, issuer[1]) if issuer else (subject, key)
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(issuer_name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(end)
+    )
+    builder = _application_extensions(builder, uri, hosts, key.public_key(), signer.public_key())
+    return builder.sign(signer, hashes.SHA256()), key
+
+
+def _revoked_entries(pki: Pki) -> tuple[list[x509.RevokedCertificate], int]:
+    """Entries of the current CRL and its CRLNumber (none and 0 when there is no CRL)."""
+    if not pki.crl_file.is_file():
+        return [], 0
+    try:
+        crl = x509.load_der_x509_crl(pki.crl_file.read_bytes())
+    except (OSError, ValueError):
+        raise SecurityError(f"{pki.crl_file}: not a readable DER CRL") from None
+    try:
+        number = crl.extensions.get_extension_for_class(x509.CRLNumber).value.crl_number
+    except x509.ExtensionNotFound:
+        number = 0
+    return list(crl), number
+
+
+def _write_crl(
+    pki: Pki,
+    ca: tuple[x509.Certificate, rsa.RSAPrivateKey],
+    revoked: Sequence[x509.RevokedCertificate],
+    number: int,
+    now: datetime,
+    days: int,
+) -> None:
+    cert, key = ca
+    builder = (
+        x509.CertificateRevocationListBuilder()
+        .issuer_name(cert.subject)
+        .last_update(now)
+        .next_update(now + timedelta(days=days))
+        .add_extension(x509.CRLNumber(number), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(key.public_key()), critical=False)
+    )
+    for entry in revoked:
+        builder = builder.add_revoked_certificate(entry)
+    crl = builder.sign(key, hashes.SHA256())
+    _write(pki.crl_file, crl.public_bytes(serialization.Encoding.DER), 0o644)
+
+
+def init_pki(
+    root: Path,
+    *,
+    hosts: Sequence[str] = DEFAULT_HOSTS,
+    days: int = DEFAULT_DAYS,
+    force: bool = False,
+) -> Pki:
+    """Create the tanklab CA and one certificate per IDENTITY under ``root``; idempotent.
+
+    A complete PKI (:meth:`Pki.exists`) is kept as it is unless ``force``. With ``force``, or
+    when the CA is missing, a new CA is made and every identity re-issued (the CRL starts
+    empty); when only some identities are missing, those are issued by the existing CA.
+    Externally trusted certificates in ``trusted/`` are always kept.
+
+    Parameters
+    ----------
+    root : Path
+        Directory of the PKI (created 0700).
+    hosts : sequence of str
+        DNS names and IP addresses the servers are reached at (SubjectAltName).
+    days : int
+        Validity of the application certificates and the CRL's nextUpdate [days].
+    force : bool
+        Replace an existing CA and all its certificates.
+    """
+    pki = Pki.at(root)
+    if pki.exists() and not force:
+        return pki
+    _general_names("urn:check", hosts)  # reject a bad host before anything is written
+    _validity(_now(), days, None, None)  # and bad days
+    for sub in (pki.root, pki.ca_cert.parent, pki.own_dir, pki.private_dir, pki.trusted_dir, pki.crl_dir):
+        _mkdir(sub)
+    now = _now()
+    fresh = force or not (pki.ca_cert.is_file() and pki.ca_key.is_file())
+    if fresh:
+        ca = _make_ca(now, days)
+        _write_key(pki.ca_key, ca[1])
+        _write_cert(pki.ca_cert, ca[0])
+    else:
+        ca = _read_ca(pki)
+    start, end = _validity(now, days, None, None)
+    for name in IDENTITIES:
+        if fresh or not (pki.cert_path(name).is_file() and pki.key_path(name).is_file()):
+            cert, key = _application_cert(name, APPLICATION_URIS[name], hosts, start, end, ca)
+            _write_key(pki.key_path(name), key)
+            _write_cert(pki.cert_path(name), cert)
+    if fresh or not (pki.trusted_dir / CA_TRUST_NAME).is_file():
+        _write_cert(pki.trusted_dir / CA_TRUST_NAME, ca[0])
+    if fresh or not pki.crl_file.is_file():
+        _write_crl(pki, ca, [], 1, now, days)
+    return pki
+
+
+def issue(
+    pki: Pki,
+    name: str,
+    uri: str,
+    *,
+    hosts: Sequence[str] = DEFAULT_HOSTS,
+    days: int = DEFAULT_DAYS,
+    not_before: datetime | None = None,
+    not_after: datetime | None = None,
+) -> tuple[Path, Path]:
+    """Issue another CA-signed application certificate, written to own/{name}.der and private/{name}.pem.
+
+    ``not_before`` / ``not_after`` (timezone-aware) replace the default validity
+    ``now - 5 min .. now + days`` (tests make expired and not-yet-valid certificates this way).
+    An existing certificate of the same name is replaced. Returns (cert_path, key_path).
+    """
+    ca = _read_ca(pki)
+    start, end = _validity(_now(), days, not_before, not_after)
+    cert, key = _application_cert(name, uri, hosts, start, end, ca)
+    cert_path, key_path = pki.cert_path(name), pki.key_path(name)
+    _write_key(key_path, key)
+    _write_cert(cert_path, cert)
+    return cert_path, key_path
+
+
+def self_signed(
+    directory: Path,
+    name: str,
+    uri: str,
+    *,
+    hosts: Sequence[str] = DEFAULT_HOSTS,
+    days: int = DEFAULT_DAYS,
+) -> tuple[Path, Path]:
+    """A self-signed application certificate outside the PKI (what an external client brings).
+
+    Same extensions as the CA-issued ones. Written to ``directory/{name}.der`` and
+    ``directory/{name}.pem`` (0600); returns (cert_path, key_path).
+    """
+    start, end = _validity(_now(), days, None, None)
+    cert, key = _application_cert(_checked_name(name), uri, hosts, start, end, None)
+    cert_path, key_path = Path(directory) / f"{name}.der", Path(directory) / f"{name}.pem"
+    _write_key(key_path, key)
+    _write_cert(cert_path, cert)
+    return cert_path, key_path
+
+
+def trusted_name(cert: x509.Certificate) -> str:
+    """File name of ``cert`` in ``trusted/``: ``{CN}_{sha1}.der`` with the CN reduced to [A-Za-z0-9_.-]."""
+    safe = _SAFE.sub("_", _common_name(cert)).strip("_.") or "certificate"
+    return f"{safe[:64]}_{_fingerprint(cert)}.der"
+
+
+def trust(pki: Pki, file: Path) -> Path:
+    """Add an external certificate (DER or PEM) to ``trusted/`` as DER; returns the stored path.
+
+    Trusting a CA certificate trusts everything it issued (asyncua's TrustStore chains to it).
+    Adding the same certificate again rewrites the same file.
+    """
+    cert = read_certificate(file)
+    target = pki.trusted_dir / trusted_name(cert)
+    _mkdir(pki.trusted_dir)
+    _write_cert(target, cert)
+    return target
+
+
+def revoke(pki: Pki, cert_file: Path, *, days: int = DEFAULT_DAYS) -> None:
+    """Put a CA-issued certificate's serial on the CA's CRL (re-signed, nextUpdate now + ``days``).
+
+    A certificate the tanklab CA did not issue, or the CA itself, is a :class:`SecurityError`.
+    Revoking a certificate twice keeps one entry.
+    """
+    cert = read_certificate(cert_file)
+    ca = _read_ca(pki)
+    try:
+        cert.verify_directly_issued_by(ca[0])
+    except (ValueError, TypeError, InvalidSignature):
+        raise SecurityError(f"{cert_file}: not issued by the tanklab CA at {pki.ca_cert}") from None
+    if cert.serial_number == ca[0].serial_number:
+        raise SecurityError(f"{cert_file}: is the CA itself (replace it with `tankctl pki init --force`)")
+    now = _now()
+    entries, number = _revoked_entries(pki)
+    if all(e.serial_number != cert.serial_number for e in entries):
+        entries.append(
+            x509.RevokedCertificateBuilder().serial_number(cert.serial_number).revocation_date(now).build()
+        )
+    _mkdir(pki.crl_dir)
+    _write_crl(pki, ca, entries, number + 1, now, days)
+
+
+def _describe_one(path: Path, kind: str, revoked: set[int]) -> dict[str, Any]:
+    cert = read_certificate(path)
+    return {
+        "name": path.stem,
+        "kind": kind,
+        "subject": cert.subject.rfc4514_string(),
+        "uri": _uri(cert),
+        "not_after": cert.not_valid_after_utc.isoformat(),
+        "sha1": _fingerprint(cert),
+        "revoked": cert.serial_number in revoked,
+        "path": str(path),
+    }
+
+
+def describe(pki: Pki) -> list[dict[str, Any]]:
+    """One dict per certificate for ``tankctl pki show``: own first, then trusted, by file name.
+
+    Keys: ``name`` (file stem), ``kind`` ("own" or "trusted"), ``subject`` (RFC 4514), ``uri``
+    (first SubjectAltName URI or None), ``not_after`` (ISO 8601, UTC), ``sha1`` (thumbprint, hex),
+    ``revoked`` (serial on the CA's CRL), ``path``. A file in ``trusted/`` that is not a
+    certificate is a :class:`SecurityError` (asyncua's TrustStore would fail on it too).
+    """
+    revoked = {e.serial_number for e in _revoked_entries(pki)[0]}
+    rows: list[dict[str, Any]] = []
+    if pki.own_dir.is_dir():
+        rows += [_describe_one(p, "own", revoked) for p in sorted(pki.own_dir.glob("*.der"))]
+    if pki.trusted_dir.is_dir():
+        files = sorted(p for p in pki.trusted_dir.iterdir() if p.suffix.lower() in (".der", ".pem"))
+        rows += [_describe_one(p, "trusted", revoked) for p in files]
+    return rows

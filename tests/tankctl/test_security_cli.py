@@ -1,0 +1,305 @@
+"""``tankctl pki`` and ``tankctl user`` through typer's CliRunner, on tmp_path security homes.
+
+Each failure must be exactly one line ``tankctl: ...`` on stderr with exit code 2, no traceback;
+no output may contain a password or key material.
+"""
+
+from __future__ import annotations
+
+import json
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import typer
+from cryptography.hazmat.primitives import hashes
+from typer.testing import CliRunner
+
+from tankctl import security_cli
+from tankctl.security_cli import register
+from tanklab.home import SecurityHome
+from tanklab.pki import IDENTITIES, read_certificate, self_signed
+from tanklab.tags import Role
+from tanklab.users import UsersFile
+
+NEW_PASSWORD = "a-long-password-42"
+
+
+def _app() -> typer.Typer:
+    app = typer.Typer(pretty_exceptions_enable=False, add_completion=False)
+
+    @app.callback()
+    def root() -> None:
+        """Test root: only the security groups are mounted."""
+
+    register(app)
+    return app
+
+
+APP = _app()
+
+
+@dataclass(frozen=True)
+class Ran:
+    code: int
+    stdout: str
+    stderr: str
+
+
+def run(*args: str, stdin: str | None = None, env: dict[str, str] | None = None) -> Ran:
+    result = CliRunner().invoke(APP, list(args), input=stdin, env=env)
+    ran = Ran(result.exit_code, result.stdout, result.stderr)
+    assert "Traceback" not in ran.stdout + ran.stderr
+    assert "PRIVATE KEY" not in ran.stdout + ran.stderr
+    return ran
+
+
+def one_line_error(ran: Ran) -> str:
+    """The single stderr line of a failed command (exit code 2)."""
+    assert ran.code == 2, (ran.stdout, ran.stderr)
+    lines = ran.stderr.strip().splitlines()
+    assert len(lines) == 1, ran.stderr
+    assert lines[0].startswith("tankctl"), lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def pki_home(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A home with a PKI made by ``tankctl pki init`` (shared: key generation is the cost)."""
+    home = tmp_path_factory.mktemp("home")
+    ran = run("pki", "init", "--home", str(home), "--host", "localhost", "--host", "10.1.2.3")
+    assert ran.code == 0, ran.stderr
+    assert f"PKI at {home / 'pki'}" in ran.stdout
+    return home
+
+
+# --------------------------------------------------------------------------------------------
+# pki
+# --------------------------------------------------------------------------------------------
+
+
+def test_the_real_tankctl_mounts_both_groups() -> None:
+    from tankctl.cli import app
+
+    for group in ("pki", "user"):
+        ran = CliRunner().invoke(app, [group, "--help"])
+        assert ran.exit_code == 0, ran.stdout
+
+
+def test_pki_init_writes_the_layout(pki_home: Path) -> None:
+    pki = SecurityHome(pki_home).pki
+    assert pki.exists()
+    assert stat.S_IMODE(pki.private_dir.stat().st_mode) == 0o700
+    assert all(stat.S_IMODE(pki.key_path(n).stat().st_mode) == 0o600 for n in IDENTITIES)
+    san = read_certificate(pki.cert_path("plant")).extensions
+    assert "10.1.2.3" in str(san)
+
+
+def test_pki_init_again_keeps_it(pki_home: Path) -> None:
+    before = SecurityHome(pki_home).pki.ca_cert.read_bytes()
+    ran = run("pki", "init", "--home", str(pki_home))
+    assert ran.code == 0
+    assert "kept" in ran.stdout
+    assert SecurityHome(pki_home).pki.ca_cert.read_bytes() == before
+
+
+def test_pki_init_bad_arguments(tmp_path: Path) -> None:
+    line = one_line_error(run("pki", "init", "--home", str(tmp_path), "--days", "0"))
+    assert line == "tankctl: pki init: --days must be a positive number of days, got 0"
+    line = one_line_error(run("pki", "init", "--home", str(tmp_path), "--host", "bad host"))
+    assert line == "tankctl: host 'bad host': must be a DNS name or an IP address"
+    line = one_line_error(run("pki", "init", "--home", str(tmp_path), "--days", "many"))
+    assert line.startswith("tankctl pki init: ") and "--days" in line
+
+
+def test_pki_show_json_and_table(pki_home: Path) -> None:
+    ran = run("pki", "show", "--home", str(pki_home), "--json")
+    assert ran.code == 0, ran.stderr
+    rows = json.loads(ran.stdout)
+    own = {r["name"]: r for r in rows if r["kind"] == "own"}
+    assert set(IDENTITIES) <= set(own)
+    assert own["supervisor"]["uri"] == "urn:tanklab:supervisor"
+    assert any(r["kind"] == "trusted" and r["name"] == "tanklab-ca" for r in rows)
+    table = run("pki", "show", "--home", str(pki_home))
+    assert table.code == 0
+    assert table.stdout.splitlines()[0].split()[:2] == ["KIND", "NAME"]
+    assert own["plc"]["sha1"] in table.stdout
+
+
+def test_pki_show_without_pki(tmp_path: Path) -> None:
+    line = one_line_error(run("pki", "show", "--home", str(tmp_path / "none")))
+    assert line == f"tankctl: {tmp_path / 'none' / 'pki'}: no PKI (run `tankctl pki init`)"
+
+
+def test_pki_trust_prints_path_and_fingerprint(pki_home: Path, tmp_path: Path) -> None:
+    cert_path, _ = self_signed(tmp_path, "uaexpert", "urn:example:uaexpert")
+    sha1 = read_certificate(cert_path).fingerprint(hashes.SHA1()).hex()
+    ran = run("pki", "trust", str(cert_path), "--home", str(pki_home))
+    assert ran.code == 0, ran.stderr
+    stored = SecurityHome(pki_home).pki.trusted_dir / f"tanklab_uaexpert_{sha1}.der"
+    assert stored.is_file()
+    assert str(stored) in ran.stdout and sha1 in ran.stdout
+
+
+def test_pki_trust_refuses_junk(pki_home: Path, tmp_path: Path) -> None:
+    junk = tmp_path / "junk.pem"
+    junk.write_text("-----BEGIN CERTIFICATE-----\nnope\n-----END CERTIFICATE-----\n")
+    line = one_line_error(run("pki", "trust", str(junk), "--home", str(pki_home)))
+    assert line == f"tankctl: {junk}: not an X.509 certificate (DER or PEM)"
+    missing = one_line_error(run("pki", "trust", "--home", str(pki_home)))
+    assert missing == "tankctl pki trust: Missing argument 'file'."
+
+
+def test_pki_revoke(pki_home: Path, tmp_path: Path) -> None:
+    pki = SecurityHome(pki_home).pki
+    ran = run("pki", "revoke", str(pki.cert_path("cli")), "--home", str(pki_home))
+    assert ran.code == 0, ran.stderr
+    rows = json.loads(run("pki", "show", "--home", str(pki_home), "--json").stdout)
+    revoked = {r["name"] for r in rows if r["revoked"]}
+    assert revoked == {"cli"}
+    foreign, _ = self_signed(tmp_path, "foreign", "urn:example:foreign")
+    line = one_line_error(run("pki", "revoke", str(foreign), "--home", str(pki_home)))
+    assert line == f"tankctl: {foreign}: not issued by the tanklab CA at {pki.ca_cert}"
+
+
+def test_pki_revoke_without_pki(tmp_path: Path) -> None:
+    cert, _ = self_signed(tmp_path, "x", "urn:x")
+    line = one_line_error(run("pki", "revoke", str(cert), "--home", str(tmp_path / "h")))
+    assert line == f"tankctl: {tmp_path / 'h' / 'pki'}: no tanklab CA (run `tankctl pki init`)"
+
+
+# --------------------------------------------------------------------------------------------
+# user
+# --------------------------------------------------------------------------------------------
+
+
+def _users(home: Path) -> UsersFile:
+    return UsersFile.load(SecurityHome(home).users_file)
+
+
+def test_user_add_from_stdin(tmp_path: Path) -> None:
+    ran = run(
+        "user", "add", "alice", "--role", "Operator", "--home", str(tmp_path), "--password-stdin",
+        stdin=NEW_PASSWORD + "\n",
+    )  # fmt: skip
+    assert ran.code == 0, ran.stderr
+    assert NEW_PASSWORD not in ran.stdout + ran.stderr
+    assert ran.stdout.strip() == f"added user alice (Operator) in {tmp_path / 'users.json'}"
+    assert stat.S_IMODE((tmp_path / "users.json").stat().st_mode) == 0o600
+    assert _users(tmp_path).verify("alice", NEW_PASSWORD) is Role.OPERATOR
+
+
+def test_user_add_from_env_and_home_from_env(tmp_path: Path) -> None:
+    env = {"TANKLAB_HOME": str(tmp_path), "TANKLAB_NEW_PASSWORD": NEW_PASSWORD}
+    ran = run("user", "add", "eve", "--role", "engineer", env=env)
+    assert ran.code == 0, ran.stderr
+    assert _users(tmp_path).verify("eve", NEW_PASSWORD) is Role.ENGINEER
+
+
+def test_user_add_prompts_twice_without_echo(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(security_cli, "_stdin_is_terminal", lambda: True)
+    ran = run(
+        "user", "add", "bob", "--role", "Observer", "--home", str(tmp_path),
+        stdin=f"{NEW_PASSWORD}\n{NEW_PASSWORD}\n",
+    )  # fmt: skip
+    assert ran.code == 0, ran.stderr
+    assert "Password" in ran.stdout
+    assert NEW_PASSWORD not in ran.stdout + ran.stderr
+    assert _users(tmp_path).verify("bob", NEW_PASSWORD) is Role.OBSERVER
+
+
+def test_user_add_prompt_at_eof(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(security_cli, "_stdin_is_terminal", lambda: True)
+    ran = run("user", "add", "bob", "--role", "Observer", "--home", str(tmp_path), stdin="")
+    assert ran.code == 2
+    assert (
+        ran.stderr.strip() == "tankctl: user add: no password (use --password-stdin or TANKLAB_NEW_PASSWORD)"
+    )
+    assert not (tmp_path / "users.json").exists()
+
+
+def test_user_add_never_prompts_without_a_terminal(tmp_path: Path) -> None:
+    line = one_line_error(run("user", "add", "bob", "--role", "Observer", "--home", str(tmp_path), stdin=""))
+    assert line == (
+        "tankctl: user add: no password: stdin is not a terminal "
+        "(use --password-stdin or TANKLAB_NEW_PASSWORD)"
+    )
+    assert not (tmp_path / "users.json").exists()
+
+
+def test_commands_create_the_home_0700(tmp_path: Path) -> None:
+    home = tmp_path / "a" / "home"
+    ran = run(
+        "user",
+        "add",
+        "alice",
+        "--role",
+        "Operator",
+        "--home",
+        str(home),
+        "--password-stdin",
+        stdin=NEW_PASSWORD,
+    )
+    assert ran.code == 0, ran.stderr
+    assert stat.S_IMODE(home.stat().st_mode) == 0o700
+
+
+@pytest.mark.parametrize(
+    ("args", "stdin", "expected"),
+    [
+        (
+            ["--role", "Supervisor", "--password-stdin"],
+            NEW_PASSWORD,
+            "tankctl: user add: --role must be one of Observer, Operator, Engineer, got 'Supervisor'",
+        ),
+        (
+            ["--role", "Operator", "--password-stdin"],
+            "short-pw",
+            "tankctl: password of 'alice': must have at least 12 characters",
+        ),
+        (
+            ["--role", "Operator", "--password-stdin"],
+            "",
+            "tankctl: user add: --password-stdin: no password on stdin",
+        ),
+    ],
+)
+def test_user_add_refusals(tmp_path: Path, args: list[str], stdin: str, expected: str) -> None:
+    line = one_line_error(run("user", "add", "alice", *args, "--home", str(tmp_path), stdin=stdin + "\n"))
+    assert line == expected
+    assert "short-pw" not in line
+
+
+def test_user_add_missing_role_is_a_one_line_usage_error(tmp_path: Path) -> None:
+    line = one_line_error(run("user", "add", "alice", "--home", str(tmp_path)))
+    assert line.startswith("tankctl user add: ") and "--role" in line
+
+
+def test_user_add_existing_needs_replace_then_list_and_remove(tmp_path: Path) -> None:
+    home = ["--home", str(tmp_path)]
+    add = ["user", "add", "alice", "--password-stdin", *home]
+    assert run(*add, "--role", "Operator", stdin=NEW_PASSWORD).code == 0
+    line = one_line_error(run(*add, "--role", "Engineer", stdin=NEW_PASSWORD))
+    assert line == f"tankctl: {tmp_path / 'users.json'}: user 'alice' exists (use --replace to change it)"
+    replaced = run(*add, "--role", "Engineer", "--replace", stdin="another-password")
+    assert replaced.code == 0 and replaced.stdout.startswith("replaced user alice (Engineer)")
+    assert (
+        run("user", "add", "bob", "--role", "Observer", "--password-stdin", *home, stdin=NEW_PASSWORD).code
+        == 0
+    )
+    listed = run("user", "list", *home)
+    assert listed.code == 0
+    assert listed.stdout.splitlines() == ["alice  Engineer", "bob    Observer"]
+    assert run("user", "remove", "alice", *home).code == 0
+    assert _users(tmp_path).names() == ["bob"]
+    line = one_line_error(run("user", "remove", "alice", *home))
+    assert line == f"tankctl: {tmp_path / 'users.json'}: no user 'alice'"
+
+
+def test_user_list_empty_and_corrupt(tmp_path: Path) -> None:
+    empty = run("user", "list", "--home", str(tmp_path))
+    assert empty.code == 0 and empty.stdout.strip() == f"no users in {tmp_path / 'users.json'}"
+    (tmp_path / "users.json").write_text('{"users": {"x": {"role": "PLC", "password_hash": "h"}}}')
+    line = one_line_error(run("user", "list", "--home", str(tmp_path)))
+    assert line.startswith(f"tankctl: {tmp_path / 'users.json'}: users.x.role: must be one of")
