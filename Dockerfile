@@ -22,10 +22,15 @@ RUN sh /usr/local/bin/tanklab-install /src /opt/venv /tmp/wheels
 FROM python:3.11-slim
 # TANKLAB_HOST=0.0.0.0: a tier in a container must listen on every interface to be reachable
 # from the other containers and through the published ports (the CLI's default is 127.0.0.1).
+# TANKLAB_HOME: where the certificates, the tier's key and the users file are mounted read-only
+# (docker-compose.yml); the image holds no key and no password. The audit log goes to the
+# writable volume.
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
-    TANKLAB_HOST=0.0.0.0
+    TANKLAB_HOST=0.0.0.0 \
+    TANKLAB_HOME=/etc/tanklab \
+    TANKLAB_AUDIT_DIR=/var/lib/tanklab/audit
 # uid/gid 10001: outside the range of host accounts; /var/lib/tanklab holds the plant's state
 # file (a volume in docker-compose.yml), the only place the user may write.
 RUN groupadd --system --gid 10001 tanklab \

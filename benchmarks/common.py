@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from tanklab.config import SiteConfig, load_site
+from tanklab.ua import ClientSetup
 
 ROOT = Path(__file__).resolve().parents[1]
 ENERGIES = ROOT / "configs" / "three_tank_energies_sim.yaml"
@@ -161,3 +162,34 @@ def machine() -> dict[str, str]:
     except (OSError, IndexError, ValueError):
         pass
     return info
+
+
+_BENCH_HOME: Path | None = None
+
+
+def bench_home() -> Path:
+    """The benchmarks' own security home (PKI and an engineer login), made once per run in a
+    temporary directory: benchmarks never touch the user's ``~/.config/tanklab``."""
+    global _BENCH_HOME
+    if _BENCH_HOME is None:
+        import atexit
+        import shutil
+        import tempfile
+
+        from tanklab.home import SecurityHome, provision
+
+        root = Path(tempfile.mkdtemp(prefix="tanklab-bench-home-"))
+        atexit.register(shutil.rmtree, root, True)
+        provision(SecurityHome(root))
+        _BENCH_HOME = root
+    return _BENCH_HOME
+
+
+def cli_setup() -> ClientSetup:
+    """A :class:`tanklab.ua.Link` setup logging in as the bench home's engineer."""
+    from tanklab.home import SecurityHome
+    from tanklab.ua_security import ClientIdentity, client_setup
+    from tanklab.users import load_credentials
+
+    home = SecurityHome(bench_home())
+    return client_setup(ClientIdentity(home, "cli", load_credentials(home.credentials_file, {})))

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import IO
 
-from benchmarks.common import ROOT
+from benchmarks.common import ROOT, bench_home
 
 STOP_TIMEOUT_S = 20.0
 BANNER_TIMEOUT_S = 60.0
@@ -145,6 +145,7 @@ class Proc:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._log = self.log_path.open("wb")
         env = {k: v for k, v in os.environ.items() if not k.startswith("TANKLAB_")}
+        env["TANKLAB_HOME"] = str(bench_home())
         self.proc = await asyncio.create_subprocess_exec(
             sys.executable,
             "-m",

@@ -37,7 +37,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import ENERGIES, SCENARIO_DURATION_S, SCENARIO_STEP_AT_S, SCENARIO_STEP_M, load
+from benchmarks.common import (
+    ENERGIES,
+    SCENARIO_DURATION_S,
+    SCENARIO_STEP_AT_S,
+    SCENARIO_STEP_M,
+    cli_setup,
+    load,
+)
 from benchmarks.procs import CpuMeter, Proc, free_base_port
 from supervisor.cycle import PlcSnapshot
 from tanklab.tags import plant_tags, plc_tags, tags_by_path
@@ -132,7 +139,7 @@ async def connect(url: str, tags: dict[str, Any], name: str, timeout_s: float = 
     """A connected :class:`Link`, retrying every 20 ms (a fresh Link skips the backoff)."""
     deadline = time.monotonic() + timeout_s
     while True:
-        link = Link(url, tags, name=name, timeout_s=2.0)
+        link = Link(url, tags, name=name, setup=cli_setup(), timeout_s=2.0)
         if await link.ensure():
             return link
         if time.monotonic() > deadline:

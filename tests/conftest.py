@@ -1,8 +1,17 @@
-"""Test configuration: make tests/helpers.py importable and expose the repository root."""
+"""Test configuration: helpers importable, the repository root, and the test security home.
+
+There is no unauthenticated test path: the session-wide, autouse :func:`security_home`
+provisions a PKI and one user per login role before any test runs and points
+``TANKLAB_HOME`` at it, so every tier process, every ``tankctl`` command and every client of
+:func:`helpers.secure` connects encrypted and authenticated like a real deployment (the CLI as
+``engineer`` through the home's 0600 credentials file).
+"""
 
 from __future__ import annotations
 
+import os
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -10,8 +19,35 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from helpers import TEST_PASSWORDS, TEST_ROLES  # noqa: E402
+from tanklab.home import SecurityHome  # noqa: E402
+from tanklab.pki import init_pki  # noqa: E402
+from tanklab.users import Credentials, UsersFile, write_credentials  # noqa: E402
+
 
 @pytest.fixture
 def root() -> Path:
     """The repository root (configs/, docs/ live there)."""
     return ROOT
+
+
+@pytest.fixture(scope="session", autouse=True)
+def security_home(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SecurityHome]:
+    """The session's security home: PKI, one user per login role, the CLI's credentials."""
+    home = SecurityHome(tmp_path_factory.mktemp("tanklab-home"))
+    init_pki(home.pki.root)
+    users = UsersFile.load(home.users_file)
+    for name, role in TEST_ROLES.items():
+        users.add(name, role, TEST_PASSWORDS[name])
+    users.save()
+    write_credentials(home.credentials_file, Credentials("engineer", TEST_PASSWORDS["engineer"]))
+    saved = {k: os.environ.get(k) for k in ("TANKLAB_HOME", "TANKLAB_USER", "TANKLAB_PASSWORD")}
+    os.environ["TANKLAB_HOME"] = str(home.root)
+    os.environ.pop("TANKLAB_USER", None)
+    os.environ.pop("TANKLAB_PASSWORD", None)
+    yield home
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value

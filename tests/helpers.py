@@ -3,9 +3,22 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import time
 from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+from asyncua import Client
+
+from tanklab.home import SecurityHome
+from tanklab.tags import Role
+from tanklab.ua_security import ClientIdentity, ServerSecurity, secure_client
+from tanklab.users import Credentials
+
+TEST_ROLES = {"observer": Role.OBSERVER, "operator": Role.OPERATOR, "engineer": Role.ENGINEER}
+"""The login users of the test security home (see conftest.security_home)."""
+TEST_PASSWORDS = {name: f"{name}-test-password" for name in TEST_ROLES}
 
 
 def free_port() -> int:
@@ -58,7 +71,7 @@ async def wait_until(
         await asyncio.sleep(poll_s)
 
 
-ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[1]
 
 
 class TierProcess:
@@ -114,3 +127,32 @@ class TierProcess:
         if self.proc is not None and self.proc.returncode is None:
             self.proc.kill()
             await self.proc.wait()
+
+
+def session_home() -> SecurityHome:
+    """The session's security home (``TANKLAB_HOME``, set by conftest.security_home)."""
+    return SecurityHome(Path(os.environ["TANKLAB_HOME"]))
+
+
+def server_security() -> ServerSecurity:
+    """What an in-process tier server of a test is secured with."""
+    return ServerSecurity(session_home())
+
+
+def identity(
+    user: str = "engineer", *, tier: str | None = None, policy: str = "Basic256Sha256"
+) -> ClientIdentity:
+    """A test user's login (``user``), or a tier's certificate identity (``tier``)."""
+    if tier is not None:
+        return ClientIdentity(session_home(), tier, policy=policy)
+    return ClientIdentity(session_home(), "cli", Credentials(user, TEST_PASSWORDS[user]), policy=policy)
+
+
+async def secure(
+    url: str, user: str = "engineer", *, tier: str | None = None, timeout_s: float = 4.0
+) -> Client:
+    """A client of ``url`` set up (not connected) to connect as a test user or a tier:
+    ``async with await secure(url, "operator") as client: ...``."""
+    client = Client(url, timeout=timeout_s)
+    await secure_client(client, identity(user, tier=tier))
+    return client

@@ -36,7 +36,7 @@ from typing import Any
 import pytest
 import yaml
 
-from helpers import free_port, wait_until
+from helpers import free_port, identity, server_security, wait_until
 from tankctl import health
 from tanklab.config import load_site, parse_endpoint_url
 from tanklab.tags import plant_tags, plc_tags, supervisor_tags
@@ -201,6 +201,38 @@ def test_compose_networks_follow_the_secured_layout() -> None:
     for net in compose["networks"].values():
         # An internal network could not publish ports; the CLI on the host needs all three.
         assert not (net or {}).get("internal", False)
+
+
+def _mounts(service: dict[str, Any]) -> dict[str, tuple[str, str]]:
+    """Container path -> (host path, mode) of a service's bind mounts."""
+    out = {}
+    for vol in service.get("volumes", []):
+        parts = _interpolated(vol).split(":")
+        if len(parts) == 3:
+            out[parts[1]] = (parts[0], parts[2])
+    return out
+
+
+def test_compose_mounts_secrets_read_only_and_only_the_tiers_own_key() -> None:
+    services = _compose()["services"]
+    for tier in ("plant", "plc", "supervisor"):
+        mounts = _mounts(services[tier])
+        secret = {c: hm for c, hm in mounts.items() if c.startswith("/etc/tanklab")}
+        assert all(mode == "ro" for _, mode in secret.values()), tier
+        keys = [c for c in secret if c.startswith("/etc/tanklab/pki/private")]
+        assert keys == [f"/etc/tanklab/pki/private/{tier}.pem"], tier
+        for needed in ("pki/own", "pki/trusted", "pki/crl", "users.json"):
+            assert f"/etc/tanklab/{needed}" in secret, (tier, needed)
+        assert "/etc/tanklab/pki/ca" not in secret  # the CA key stays on the host
+    assert _dockerfile_env(_stages(_instructions())[-1])["TANKLAB_HOME"] == "/etc/tanklab"
+
+
+def test_no_secret_can_enter_the_image() -> None:
+    patterns = [line.strip() for line in DOCKERIGNORE.read_text().splitlines() if line.strip()]
+    for pattern in (".tanklab", "*.pem", "*.der"):
+        assert pattern in patterns
+    for ins in _instructions():
+        assert "pki" not in ins.args and "users.json" not in ins.args, ins
 
 
 def test_compose_starts_each_tier_after_the_tier_below_is_healthy() -> None:
@@ -437,6 +469,9 @@ def _image_env(venv: Path) -> dict[str, str]:
 @pytest.mark.timeout(300)
 async def test_image_install_and_start_steps_in_a_fresh_venv(fresh_venv: Path, tmp_path: Path) -> None:
     env = _image_env(fresh_venv)
+    # What compose mounts read-only at TANKLAB_HOME (the image has no keys), and the audit volume.
+    env["TANKLAB_HOME"] = os.environ["TANKLAB_HOME"]
+    env["TANKLAB_AUDIT_DIR"] = str(tmp_path / "audit")
     python = str(fresh_venv / "bin" / "python")
     # The venv holds its own copy of the code, not the source tree.
     where = subprocess.run(
@@ -518,18 +553,26 @@ async def test_health_reads_a_running_plant() -> None:
     port = free_port()
     stop, ready = asyncio.Event(), asyncio.Event()
     task = asyncio.create_task(
-        run_plant(site, host="127.0.0.1", port=port, speed=1.0, stop=stop, ready=ready)
+        run_plant(
+            site, host="127.0.0.1", port=port, security=server_security(), speed=1.0, stop=stop, ready=ready
+        )
     )
     try:
         await wait_until(ready.is_set, 20, what="plant server ready")
         url = f"opc.tcp://127.0.0.1:{port}/tanklab/plant"
-        t = await health.read_once(url, "Plant.Sim.Time")
+        own = identity(tier="plant")  # the probe acts with the tier's own certificate
+        t = await health.read_once(url, "Plant.Sim.Time", own)
         assert isinstance(t, float) and t >= 0.0
         with pytest.raises(health.ProbeError, match=r"Plant\.Nope: BadNodeIdUnknown"):
-            await health.read_once(url, "Plant.Nope")
+            await health.read_once(url, "Plant.Nope", own)
         # A plc URL on the plant's port: the plc's default node is not there.
         with pytest.raises(health.ProbeError, match=r"PLC\.Status\.Scan: BadNodeIdUnknown"):
-            await health.read_once(url.replace("/plant", "/plc"), health.default_path("x/plc"))
+            await health.read_once(
+                url.replace("/plant", "/plc"), health.default_path("x/plc"), identity(tier="plc")
+            )
+        # The supervisor's certificate is no identity on the plant: refused, one line.
+        with pytest.raises(health.ProbeError, match="BadUserAccessDenied"):
+            await health.read_once(url, "Plant.Sim.Time", identity(tier="supervisor"))
     finally:
         stop.set()
         await asyncio.wait_for(task, 20)

@@ -21,6 +21,7 @@ from plant_sim.plant import PlantSimulator
 from plant_sim.server import PlantServer
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
+from tanklab.ua_security import ServerSecurity
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +55,7 @@ async def run_plant(
     *,
     host: str,
     port: int,
+    security: ServerSecurity,
     speed: float = 1.0,
     lockstep: bool = False,
     stop: asyncio.Event,
@@ -74,7 +76,7 @@ async def run_plant(
         state_file = Path(site.plant.state_file)
     if state_file is not None:
         load_checkpoint(sim, state_file)
-    server = PlantServer(site, sim, host, port, lockstep=lockstep)
+    server = PlantServer(site, sim, host, port, security, lockstep=lockstep)
     await server.start()
     await server.publish_speed(0.0 if lockstep else speed)
     if ready is not None:

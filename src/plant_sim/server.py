@@ -13,13 +13,14 @@ import logging
 from typing import Any
 
 import numpy as np
-from asyncua import Server, ua
+from asyncua import ua
 
 from plant_sim.plant import PlantSimulator
 from tanklab.config import SiteConfig
 from tanklab.enums import SensorFault
-from tanklab.tags import APPLICATION_URIS, Tag, plant_tags, tags_by_path
-from tanklab.ua import Publisher, build_nodes, install_write_guard
+from tanklab.tags import Tag, plant_tags, tags_by_path
+from tanklab.ua import Publisher
+from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
 
@@ -32,11 +33,19 @@ class PlantServer:
     site : the site config (its plant section is simulated).
     sim : the simulator to serve (shared with the runtime that advances it).
     host, port : where to listen.
+    security : PKI, users and audit directory (:mod:`tanklab.ua_security`).
     lockstep : whether ``Plant.Sim.Advance`` is allowed (the plant then ignores the wall clock).
     """
 
     def __init__(
-        self, site: SiteConfig, sim: PlantSimulator, host: str, port: int, *, lockstep: bool = False
+        self,
+        site: SiteConfig,
+        sim: PlantSimulator,
+        host: str,
+        port: int,
+        security: ServerSecurity,
+        *,
+        lockstep: bool = False,
     ):
         self.site = site
         self.sim = sim
@@ -46,28 +55,30 @@ class PlantServer:
         self.url = f"opc.tcp://{host}:{port}/tanklab/plant"
         self.tags = plant_tags(site)
         self.by_path = tags_by_path(self.tags)
-        self.server = Server()
+        self.security = security
+        self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
         self.advances = 0
 
     async def start(self) -> None:
-        """Initialise, build the address space and start listening."""
-        srv = self.server
-        await srv.init()
-        srv.set_endpoint(self.url)
-        srv.set_server_name("tanklab plant simulator")
-        await srv.set_application_uri(APPLICATION_URIS["plant"])
-        srv.set_security_policy([ua.SecurityPolicyType.NoSecurity])
-        _, nodes = await build_nodes(srv, self.tags, {"Plant.Sim.Advance": self._advance})
-        install_write_guard(srv, self.tags, nodes, self._on_write)
-        self.publisher = Publisher(srv, self.by_path, nodes)
-        await srv.start()
+        """Initialise, secure, build the address space and start listening."""
+        self.tier = await start_tier_server(
+            "plant",
+            url=self.url,
+            name="tanklab plant simulator",
+            security=self.security,
+            tags=self.tags,
+            on_write=self._on_write,
+            methods={"Plant.Sim.Advance": self._advance},
+        )
+        self.publisher = self.tier.publisher
         await self.publish()
         log.info("plant server listening at %s", self.url)
 
     async def stop(self) -> None:
         """Stop listening (idempotent)."""
-        await self.server.stop()
+        if self.tier is not None:
+            await self.tier.server.stop()
         log.info("plant server stopped")
 
     # ---- writes -------------------------------------------------------------------------

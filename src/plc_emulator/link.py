@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
 from tanklab.tags import plant_tags, tags_by_path
-from tanklab.ua import Link
+from tanklab.ua import ClientSetup, Link
 
 log = logging.getLogger(__name__)
 
@@ -38,13 +38,13 @@ class FieldReadings:
 class FieldLink:
     """The PLC's client of the plant server."""
 
-    def __init__(self, site: SiteConfig, url: str, *, timeout_s: float = 2.0) -> None:
+    def __init__(self, site: SiteConfig, url: str, *, setup: ClientSetup, timeout_s: float = 2.0) -> None:
         self.site = site
         tags = tags_by_path(plant_tags(site))
         self.lt_paths = [f"Plant.LT{t[1:]}.PV" for t in site.tank_names]
         self.cmd_paths = [f"Plant.{p}.Command" for p in site.pump_names]
         needed = {p: tags[p] for p in self.lt_paths + self.cmd_paths + ["Plant.Sim.Advance"]}
-        self.link = Link(url, needed, name="field", timeout_s=timeout_s)
+        self.link = Link(url, needed, name="field", setup=setup, timeout_s=timeout_s)
 
     @property
     def healthy(self) -> bool:

@@ -136,6 +136,8 @@ class _Loop:
     bad_scans: int = 0  # consecutive bad-PV scans (non-PID blocks; the PID counts its own)
     substituted: bool = False  # the substitute output was applied this scan
     working_sp_m: float | None = None  # ramped setpoint of a non-PID block [m] (None before a scan)
+    sp_low_m: float = 0.0  # operator setpoint limits set by the engineer [m], inside the config's
+    sp_high_m: float = math.inf
 
 
 @dataclass
@@ -405,11 +407,39 @@ class PlcProgram:
         raise KeyError(f"unknown loop {name!r}")
 
     def set_sp(self, name: str, sp_m: float) -> None:
-        """Operator setpoint [m]; must lie in [sp_min_m, sp_max_m]."""
+        """Operator setpoint [m]; must lie in the loop's program limits [SPLow, SPHigh]."""
         lp = self.loop(name)
-        if not (math.isfinite(sp_m) and lp.spec.sp_min_m <= sp_m <= lp.spec.sp_max_m):
-            raise ValueError(f"{name} SP {sp_m} outside [{lp.spec.sp_min_m}, {lp.spec.sp_max_m}]")
+        lo, hi = self.sp_limits(name)
+        if not (math.isfinite(sp_m) and lo <= sp_m <= hi):
+            raise ValueError(f"{name} SP {sp_m} outside [{lo}, {hi}]")
         lp.sp_m = float(sp_m)
+
+    def sp_limits(self, name: str) -> tuple[float, float]:
+        """The operator's setpoint range of a loop now [m]: the engineer's limits, which lie
+        inside the config's [sp_min_m, sp_max_m] (the defaults)."""
+        lp = self.loop(name)
+        return max(lp.sp_low_m, lp.spec.sp_min_m), min(lp.sp_high_m, lp.spec.sp_max_m)
+
+    def set_sp_limits(self, name: str, low_m: float | None = None, high_m: float | None = None) -> None:
+        """Engineer: narrow (or restore) the operator's setpoint range of a loop [m].
+
+        Both limits must be finite, inside the config's [sp_min_m, sp_max_m], low <= high, and
+        the current setpoint must lie inside the new range (move it first); else ValueError and
+        nothing changes.
+        """
+        lp = self.loop(name)
+        lo_now, hi_now = self.sp_limits(name)
+        lo = lo_now if low_m is None else float(low_m)
+        hi = hi_now if high_m is None else float(high_m)
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise ValueError(f"{name} setpoint limits must be finite")
+        if not lp.spec.sp_min_m <= lo <= hi <= lp.spec.sp_max_m:
+            raise ValueError(
+                f"{name} setpoint limits [{lo}, {hi}] must lie in [{lp.spec.sp_min_m}, {lp.spec.sp_max_m}]"
+            )
+        if not lo <= lp.sp_m <= hi:
+            raise ValueError(f"{name} SP {lp.sp_m} lies outside the new limits [{lo}, {hi}]")
+        lp.sp_low_m, lp.sp_high_m = lo, hi
 
     def set_mode(self, name: str, mode: LoopMode) -> None:
         """Switch a loop's mode (bumpless in every direction: MANUAL and REMOTE start from the MV)."""
@@ -506,6 +536,7 @@ class PlcProgram:
             g = lp.applied
             loops[lp.spec.name] = {
                 "sp_m": lp.sp_m,
+                "sp_limits_m": list(self.sp_limits(lp.spec.name)),
                 "mode": lp.mode.name,
                 "gains": [g.kp, g.ki, g.kd] if g is not None else None,
                 "source": lp.source.name,
@@ -525,6 +556,12 @@ class PlcProgram:
         for name, entry in dict(data.get("loops", {})).items():
             try:
                 lp = self.loop(name)
+                if "sp_limits_m" in entry:  # absent in files of earlier versions
+                    lo, hi = (float(x) for x in entry["sp_limits_m"])
+                    lp.sp_low_m, lp.sp_high_m = lp.spec.sp_min_m, lp.spec.sp_max_m
+                    if not lo <= lp.sp_m <= hi:
+                        self.set_sp(name, min(max(lp.sp_m, lo), hi))
+                    self.set_sp_limits(name, lo, hi)
                 self.set_sp(name, float(entry["sp_m"]))
                 gains = entry.get("gains")
                 if gains is not None and lp.spec.block == "pid":
@@ -559,8 +596,11 @@ class PlcProgram:
 
     # ---- the scan -----------------------------------------------------------------------
 
-    def scan(self, inputs: ScanInputs) -> ScanOutputs:
+    def scan(self, inputs: ScanInputs, *, publish: bool = True) -> ScanOutputs:
         """Run one scan at model time ``inputs.t_s``; see the module docstring for the order.
+
+        ``publish=False`` leaves ``ScanOutputs.values`` empty (a co-simulation without a
+        supervisor reads no PLC node, and :meth:`values` is a tenth of a scan's time).
 
         Raises
         ------
@@ -584,7 +624,7 @@ class PlcProgram:
         forced = self._apply_interlocks()
         self._write_outputs(forced)
         self.scan_count += 1
-        return ScanOutputs(commands=self.commands.copy(), values=self.values())
+        return ScanOutputs(commands=self.commands.copy(), values=self.values() if publish else {})
 
     def _set_pid_gains(self) -> None:
         for group in self.pid_groups:
@@ -751,6 +791,7 @@ class PlcProgram:
         for lp in self.loops:
             p = f"PLC.{lp.spec.name}"
             v[f"{p}.SP"] = float(lp.sp_m)
+            v[f"{p}.SPLow"], v[f"{p}.SPHigh"] = self.sp_limits(lp.spec.name)
             v[f"{p}.PV"] = float(lp.pv_last_good_m)
             v[f"{p}.MV"] = float(lp.mv)
             v[f"{p}.Mode"] = int(lp.mode)

@@ -35,6 +35,7 @@ from plc_emulator.program import PlcProgram, ScanInputs
 from plc_emulator.server import PlcServer
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
+from tanklab.ua_security import ClientIdentity, ServerSecurity, client_setup
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +79,7 @@ async def run_plc(
     host: str,
     port: int,
     plant_url: str,
+    security: ServerSecurity,
     stop: asyncio.Event,
     speed: float = 1.0,
     lockstep: bool = False,
@@ -101,7 +103,7 @@ async def run_plc(
     ts = site.plc.scan_period_s
     timeout = site.plc.watchdog.timeout_s
     program = PlcProgram(site, watchdog_timeout_s=timeout if lockstep else max(timeout, WALL_FLOOR_S * speed))
-    server = PlcServer(site, program, host, port)
+    server = PlcServer(site, program, host, port, security)
     ack = asyncio.Event()
     seen = asyncio.Event()  # the supervisor has written a heartbeat at least once
 
@@ -110,7 +112,12 @@ async def run_plc(
         seen.set()
 
     server.on_heartbeat = on_heartbeat
-    field_link = FieldLink(site, plant_url, timeout_s=min(2.0, max(0.2, ts / speed)))
+    field_link = FieldLink(
+        site,
+        plant_url,
+        setup=client_setup(ClientIdentity(security.home, "plc")),
+        timeout_s=min(2.0, max(0.2, ts / speed)),
+    )
     retain = Path(site.plc.retain_file) if site.plc.retain_file else None
     if retain is not None and retain.exists():
         try:

@@ -15,13 +15,14 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from asyncua import Server, ua
+from asyncua import ua
 
 from plc_emulator.program import GainStatus, PlcProgram
 from tanklab.config import SiteConfig
 from tanklab.enums import LoopMode
-from tanklab.tags import APPLICATION_URIS, Tag, plc_tags, tags_by_path
-from tanklab.ua import MethodHandler, Publisher, build_nodes, install_write_guard
+from tanklab.tags import Tag, plc_tags, tags_by_path
+from tanklab.ua import MethodHandler, Publisher
+from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
 
@@ -35,37 +36,41 @@ _STATUS = {
 class PlcServer:
     """Serves a :class:`PlcProgram` at ``opc.tcp://HOST:PORT/tanklab/plc``."""
 
-    def __init__(self, site: SiteConfig, program: PlcProgram, host: str, port: int) -> None:
+    def __init__(
+        self, site: SiteConfig, program: PlcProgram, host: str, port: int, security: ServerSecurity
+    ) -> None:
         self.site = site
         self.program = program
         self.url = f"opc.tcp://{host}:{port}/tanklab/plc"
         self.tags = plc_tags(site)
         self.by_path = tags_by_path(self.tags)
-        self.server = Server()
+        self.security = security
+        self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
         self.on_heartbeat: Callable[[], None] | None = None
 
     async def start(self) -> None:
-        """Initialise, build the address space and start listening."""
-        srv = self.server
-        await srv.init()
-        srv.set_endpoint(self.url)
-        srv.set_server_name("tanklab soft PLC")
-        await srv.set_application_uri(APPLICATION_URIS["plc"])
-        srv.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        """Initialise, secure, build the address space and start listening."""
         methods: dict[str, MethodHandler] = {"PLC.Interlock.Reset": self._reset}
         for lp in self.program.loops:
             methods[f"PLC.{lp.spec.name}.SetGains"] = self._set_gains_for(lp.spec.name)
-        _, nodes = await build_nodes(srv, self.tags, methods)
-        install_write_guard(srv, self.tags, nodes, self._on_write)
-        self.publisher = Publisher(srv, self.by_path, nodes)
-        await srv.start()
+        self.tier = await start_tier_server(
+            "plc",
+            url=self.url,
+            name="tanklab soft PLC",
+            security=self.security,
+            tags=self.tags,
+            on_write=self._on_write,
+            methods=methods,
+        )
+        self.publisher = self.tier.publisher
         static: dict[str, Any] = {f"PLC.{lp.spec.name}.Block": lp.spec.block for lp in self.program.loops}
         await self.publish({**static, **self.program.values()})
         log.info("PLC server listening at %s", self.url)
 
     async def stop(self) -> None:
-        await self.server.stop()
+        if self.tier is not None:
+            await self.tier.server.stop()
         log.info("PLC server stopped")
 
     async def publish(self, values: dict[str, Any]) -> None:
@@ -86,6 +91,10 @@ class PlcServer:
             loop, item = parts[1], parts[2]
             if item == "SP":
                 self.program.set_sp(loop, float(value))
+            elif item == "SPLow":
+                self.program.set_sp_limits(loop, low_m=float(value))
+            elif item == "SPHigh":
+                self.program.set_sp_limits(loop, high_m=float(value))
             elif item == "Mode":
                 self.program.set_mode(loop, LoopMode(int(value)))
             elif item == "ManualMV":

@@ -18,7 +18,7 @@ from supervisor.cycle import Actions, PlcSnapshot
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
 from tanklab.tags import plc_tags, tags_by_path
-from tanklab.ua import Link
+from tanklab.ua import ClientSetup, Link
 
 log = logging.getLogger(__name__)
 
@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 class PlcLink:
     """The supervisor's OPC UA client of the PLC."""
 
-    def __init__(self, site: SiteConfig, url: str, *, timeout_s: float = 2.0) -> None:
+    def __init__(self, site: SiteConfig, url: str, *, setup: ClientSetup, timeout_s: float = 2.0) -> None:
         self.site = site
         self.loops = site.loop_names
         self.tanks = site.tank_names
@@ -34,7 +34,9 @@ class PlcLink:
         self.read_paths = PlcSnapshot.read_paths(self.loops, self.tanks)
         writes = ["PLC.Supervisor.Heartbeat"]
         writes += [f"PLC.{lp}.{item}" for lp in self.loops for item in ("RemoteMV", "Mode", "SetGains")]
-        self.link = Link(url, {p: tags[p] for p in self.read_paths + writes}, name="plc", timeout_s=timeout_s)
+        self.link = Link(
+            url, {p: tags[p] for p in self.read_paths + writes}, name="plc", setup=setup, timeout_s=timeout_s
+        )
 
     @property
     def healthy(self) -> bool:

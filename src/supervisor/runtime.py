@@ -23,6 +23,7 @@ from supervisor.server import SupervisorServer
 from tanklab.clock import Clock, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
+from tanklab.ua_security import ClientIdentity, ServerSecurity, client_setup
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +36,7 @@ async def run_supervisor(
     host: str,
     port: int,
     plc_url: str,
+    security: ServerSecurity,
     stop: asyncio.Event,
     speed: float = 1.0,
     lockstep: bool = False,
@@ -48,9 +50,14 @@ async def run_supervisor(
         raise ValueError(f"speed must be > 0, got {speed}")
     clock = clock or MonotonicClock()
     core = SupervisorCore(site)
-    server = SupervisorServer(site, core, host, port)
+    server = SupervisorServer(site, core, host, port, security)
     ts_wall = site.plc.scan_period_s / speed
-    link = PlcLink(site, plc_url, timeout_s=min(2.0, max(0.2, 2 * ts_wall)))
+    link = PlcLink(
+        site,
+        plc_url,
+        setup=client_setup(ClientIdentity(security.home, "supervisor")),
+        timeout_s=min(2.0, max(0.2, 2 * ts_wall)),
+    )
     poll_s = 0.001 if lockstep else max(0.005, ts_wall / 5)
     stale_wall_s = max(site.supervisor.plc_stale_s / speed, WALL_FLOOR_S)
     await server.start()

@@ -10,13 +10,14 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from asyncua import Server, ua
+from asyncua import ua
 
 from supervisor.cycle import SupervisorCore
 from tanklab.config import SiteConfig
 from tanklab.enums import SupervisorMode
-from tanklab.tags import APPLICATION_URIS, Tag, supervisor_tags, tags_by_path
-from tanklab.ua import Publisher, build_nodes, install_write_guard
+from tanklab.tags import Tag, supervisor_tags, tags_by_path
+from tanklab.ua import Publisher
+from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
 
@@ -24,31 +25,35 @@ log = logging.getLogger(__name__)
 class SupervisorServer:
     """Serves a :class:`SupervisorCore` at ``opc.tcp://HOST:PORT/tanklab/supervisor``."""
 
-    def __init__(self, site: SiteConfig, core: SupervisorCore, host: str, port: int) -> None:
+    def __init__(
+        self, site: SiteConfig, core: SupervisorCore, host: str, port: int, security: ServerSecurity
+    ) -> None:
         self.site = site
         self.core = core
         self.url = f"opc.tcp://{host}:{port}/tanklab/supervisor"
         self.tags = supervisor_tags(site)
         self.by_path = tags_by_path(self.tags)
-        self.server = Server()
+        self.security = security
+        self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
 
     async def start(self) -> None:
-        srv = self.server
-        await srv.init()
-        srv.set_endpoint(self.url)
-        srv.set_server_name("tanklab supervisor")
-        await srv.set_application_uri(APPLICATION_URIS["supervisor"])
-        srv.set_security_policy([ua.SecurityPolicyType.NoSecurity])
-        _, nodes = await build_nodes(srv, self.tags)
-        install_write_guard(srv, self.tags, nodes, self._on_write)
-        self.publisher = Publisher(srv, self.by_path, nodes)
-        await srv.start()
+        """Initialise, secure, build the address space and start listening."""
+        self.tier = await start_tier_server(
+            "supervisor",
+            url=self.url,
+            name="tanklab supervisor",
+            security=self.security,
+            tags=self.tags,
+            on_write=self._on_write,
+        )
+        self.publisher = self.tier.publisher
         await self.publish(self.core.values())
         log.info("supervisor server listening at %s", self.url)
 
     async def stop(self) -> None:
-        await self.server.stop()
+        if self.tier is not None:
+            await self.tier.server.stop()
         log.info("supervisor server stopped")
 
     async def publish(self, values: dict[str, Any]) -> None:

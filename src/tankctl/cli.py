@@ -14,17 +14,21 @@ import os
 import signal
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import typer
 
 from tankctl import ops
+from tankctl.security_cli import register as register_security
 from tankctl.simulate import register as register_simulate
 from tankctl.tune_cli import app as tune_app
 from tanklab.config import SiteConfig, load_site, site_schema
 from tanklab.errors import TanklabError
 from tanklab.tags import render_markdown
+
+if TYPE_CHECKING:
+    from tanklab.ua_security import ServerSecurity
 
 app = typer.Typer(
     name="tankctl",
@@ -39,6 +43,7 @@ app.add_typer(config_app, name="config")
 app.add_typer(tune_app, name="tune")
 ops.register(app)
 register_simulate(app)
+register_security(app)
 app.add_typer(docs_app, name="docs")
 
 ConfigOpt = Annotated[
@@ -46,6 +51,26 @@ ConfigOpt = Annotated[
     typer.Option("--config", "-c", help="Site YAML file (env TANKLAB_CONFIG; default: the Energies sim)."),
 ]
 HostOpt = Annotated[str | None, typer.Option(help="Address to bind (env TANKLAB_HOST; default 127.0.0.1).")]
+HomeOpt = Annotated[
+    Path | None,
+    typer.Option(
+        help="Security home: PKI, users file, credentials (env TANKLAB_HOME; default ~/.config/tanklab)."
+    ),
+]
+AuditOpt = Annotated[
+    Path | None, typer.Option(help="Where the audit log goes (env TANKLAB_AUDIT_DIR; default HOME/audit).")
+]
+
+
+def server_security(home: Path | None, audit_dir: Path | None) -> ServerSecurity:
+    """A tier's security settings from its options, their environment twins and the defaults."""
+    from tanklab.home import SecurityHome, default_home
+    from tanklab.ua_security import ServerSecurity
+
+    audit = audit_dir or (Path(v) if (v := _env("TANKLAB_AUDIT_DIR")) else None)
+    return ServerSecurity(SecurityHome(home or default_home()), audit)
+
+
 SpeedOpt = Annotated[
     float | None, typer.Option(help="Model seconds per wall second (env TANKLAB_SPEED; default 1).")
 ]
@@ -268,6 +293,8 @@ def plant(
         bool, typer.Option(help="Advance only through Plant.Sim.Advance (driven by the PLC).")
     ] = False,
     state_file: Annotated[Path | None, typer.Option(help="Checkpoint file (default: the config's).")] = None,
+    home: HomeOpt = None,
+    audit_dir: AuditOpt = None,
 ) -> None:
     """Serve the plant simulator at opc.tcp://HOST:PORT/tanklab/plant."""
     from plant_sim.runtime import run_plant
@@ -282,6 +309,7 @@ def plant(
             site,
             host=bind,
             port=p,
+            security=server_security(home, audit_dir),
             speed=spd,
             lockstep=lockstep,
             stop=stop,
@@ -305,6 +333,8 @@ def plc(
     trace: Annotated[
         Path | None, typer.Option(help="CSV file getting one line per scan (a small historian).")
     ] = None,
+    home: HomeOpt = None,
+    audit_dir: AuditOpt = None,
 ) -> None:
     """Serve the soft PLC at opc.tcp://HOST:PORT/tanklab/plc, scanning against the plant."""
     from plc_emulator.runtime import run_plc
@@ -323,6 +353,7 @@ def plc(
             host=bind,
             port=p,
             plant_url=below,
+            security=server_security(home, audit_dir),
             stop=stop,
             speed=spd,
             lockstep=lockstep,
@@ -343,6 +374,8 @@ def supervisor(
     port: Annotated[int | None, typer.Option(help="TCP port (env TANKLAB_PORT; default 4842).")] = None,
     speed: SpeedOpt = None,
     lockstep: Annotated[bool, typer.Option(help="Acknowledge every PLC scan as fast as possible.")] = False,
+    home: HomeOpt = None,
+    audit_dir: AuditOpt = None,
 ) -> None:
     """Serve the supervisor at opc.tcp://HOST:PORT/tanklab/supervisor, supervising the PLC."""
     from supervisor.runtime import run_supervisor
@@ -357,7 +390,15 @@ def supervisor(
 
     async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
         await run_supervisor(
-            site, host=bind, port=p, plc_url=below, stop=stop, speed=spd, lockstep=lockstep, ready=ready
+            site,
+            host=bind,
+            port=p,
+            plc_url=below,
+            security=server_security(home, audit_dir),
+            stop=stop,
+            speed=spd,
+            lockstep=lockstep,
+            ready=ready,
         )
 
     serve(
@@ -382,9 +423,14 @@ def up(
         Path, typer.Option(help="Where the tiers' logs and the plant's state file go.")
     ] = Path("var"),
     host: Annotated[str, typer.Option(help="Address the tiers bind and are reached at.")] = "127.0.0.1",
+    home: HomeOpt = None,
 ) -> None:
-    """Start plant, PLC and supervisor as child processes and show a live board."""
+    """Start plant, PLC and supervisor as child processes and show a live board.
+
+    On first use it creates the PKI and an engineer account whose random password goes to the
+    home's 0600 credentials file, which the operator commands read by default."""
     from tankctl.up import Stack, run_stack
+    from tanklab.home import SecurityHome, default_home, provision
 
     path = resolve_config(config)
     site = load(path)
@@ -395,6 +441,16 @@ def up(
     if not 1 <= base_port <= 65533:
         raise fail(f"--base-port must be 1..65533, got {base_port}")
     spd = resolve_speed(speed)
+    sec_home = SecurityHome(home or default_home())
+    try:
+        created = provision(sec_home, hosts=sorted({"localhost", "127.0.0.1", host}))
+    except (OSError, TanklabError) as e:
+        raise fail(f"{sec_home.root}: cannot set up the PKI and users: {e}") from None
+    if created is not None:
+        typer.echo(
+            f"first run: created the PKI in {sec_home.pki.root} and user 'engineer' (role Engineer); "
+            f"its password is in {sec_home.credentials_file} (0600)"
+        )
     # The board is an OPC UA client; its reconnect chatter must not scroll over the board.
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
     stack = Stack(
@@ -405,6 +461,7 @@ def up(
         "lockstep" if clock == "lockstep" else "realtime",
         log_dir / site.name,
         host=host,
+        home=sec_home,
     )
     result: list[int] = []
 

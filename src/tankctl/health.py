@@ -3,8 +3,10 @@
     python -m tankctl.health opc.tcp://HOST:PORT/tanklab/plant [--path Plant.Sim.Time] [--timeout 3]
 
 Used by the docker compose healthchecks (and usable from any shell). The probe connects
-without security, looks up the namespace index of ``urn:tanklab`` (never hard-coded), reads
-the Value of one node and reports:
+encrypted with the tier's own certificate from the security home (``--home``, env
+``TANKLAB_HOME``) as its X509 identity, which every tier's server accepts as an Observer of
+itself; it looks up the namespace index of ``urn:tanklab`` (never hard-coded), reads the Value
+of one node and reports:
 
 - exit 0 and ``ok URL PATH = VALUE`` on stdout when the read's StatusCode is Good;
 - exit 1 and ``tankctl.health: URL: REASON`` on stderr otherwise: no answer within the
@@ -23,11 +25,14 @@ import argparse
 import asyncio
 import logging
 import sys
+from pathlib import Path
 from typing import Any, NoReturn
 
 from asyncua import Client, ua
 
+from tanklab.home import SecurityHome, default_home
 from tanklab.ua import resolve
+from tanklab.ua_security import ClientIdentity, secure_client
 
 DEFAULT_PATHS = {
     "plant": "Plant.Sim.Time",
@@ -64,7 +69,9 @@ def default_path(url: str) -> str:
         ) from None
 
 
-async def read_once(url: str, path: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> Any:
+async def read_once(
+    url: str, path: str, identity: ClientIdentity, timeout_s: float = DEFAULT_TIMEOUT_S
+) -> Any:
     """Connect to ``url``, read node ``path`` of namespace ``urn:tanklab`` and return its value.
 
     Parameters
@@ -73,6 +80,8 @@ async def read_once(url: str, path: str, timeout_s: float = DEFAULT_TIMEOUT_S) -
         ``opc.tcp://HOST:PORT/...`` endpoint of a tier.
     path
         Dotted tag path (the string NodeId), e.g. ``Plant.Sim.Time``.
+    identity
+        Who connects (the tier's own certificate, or the CLI with a login).
     timeout_s
         Bound on the whole exchange [s of wall time].
 
@@ -83,7 +92,9 @@ async def read_once(url: str, path: str, timeout_s: float = DEFAULT_TIMEOUT_S) -
     """
 
     async def exchange() -> Any:
-        async with Client(url, timeout=timeout_s) as client:
+        client = Client(url, timeout=timeout_s)
+        await secure_client(client, identity)
+        async with client:
             try:
                 nodes = await resolve(client, [path])
             except ValueError:
@@ -130,6 +141,7 @@ def _parser() -> argparse.ArgumentParser:
         + ", ".join(f"{tier} {path}" for tier, path in DEFAULT_PATHS.items())
         + ").",
     )
+    p.add_argument("--home", help="Security home (default: env TANKLAB_HOME, else ~/.config/tanklab).")
     p.add_argument(
         "--timeout",
         type=float,
@@ -154,7 +166,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     try:
         path = args.path or default_path(url)
-        value = asyncio.run(read_once(url, path, args.timeout))
+        tier = url.rstrip("/").rsplit("/", 1)[-1]
+        home = SecurityHome(Path(args.home) if args.home else default_home())
+        value = asyncio.run(read_once(url, path, ClientIdentity(home, tier), args.timeout))
     except (ValueError, ProbeError) as e:
         print(f"{PROG}: {url}: {e}", file=sys.stderr)
         return 1

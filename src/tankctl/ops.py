@@ -67,7 +67,8 @@ from tanklab.config import (
     parse_endpoint_url,
 )
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
-from tanklab.errors import TanklabError
+from tanklab.errors import SecurityError, TanklabError
+from tanklab.home import SecurityHome, default_home
 from tanklab.scenario import (
     DisturbanceEvent,
     Event,
@@ -82,7 +83,6 @@ from tanklab.scenario import (
     load_scenario,
 )
 from tanklab.tags import (
-    APPLICATION_URIS,
     NAMESPACE_URI,
     Tag,
     Tier,
@@ -92,6 +92,8 @@ from tanklab.tags import (
     tags_by_path,
 )
 from tanklab.ua import write_value
+from tanklab.ua_security import ClientIdentity, secure_client
+from tanklab.users import load_credentials
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -234,6 +236,7 @@ class Stack:
     site: SiteConfig
     urls: dict[Tier, str]
     timeout_s: float = DEFAULT_TIMEOUT_S
+    identity: ClientIdentity | None = None
     _tags: dict[Tier, dict[str, Tag]] = field(default_factory=dict, repr=False)
 
     def has(self, tier: Tier) -> bool:
@@ -253,7 +256,9 @@ class Stack:
 
     def client(self, tier: Tier) -> TierClient:
         """A (not yet connected) client of ``tier``."""
-        return TierClient(tier, self.urls[tier], self.tags(tier), self.timeout_s)
+        return TierClient(
+            tier, self.urls[tier], self.tags(tier), self.timeout_s, self.identity or cli_identity()
+        )
 
     # ---- local checks of names ------------------------------------------------------------
 
@@ -310,7 +315,17 @@ def make_stack(
         base_port=base_port,
         host=host,
     )
-    return Stack(site, urls, timeout)
+    return Stack(site, urls, timeout, cli_identity())
+
+
+def cli_identity(environ: Mapping[str, str] | None = None) -> ClientIdentity:
+    """Who operator commands connect as: the ``cli`` certificate of the security home
+    (``TANKLAB_HOME``, default ``~/.config/tanklab``) and the login from ``TANKLAB_USER`` and
+    ``TANKLAB_PASSWORD`` or the home's 0600 credentials file (written by ``tankctl up``)."""
+    env = os.environ if environ is None else environ
+    root = Path(env["TANKLAB_HOME"]) if env.get("TANKLAB_HOME") else default_home()
+    home = SecurityHome(root)
+    return ClientIdentity(home, "cli", load_credentials(home.credentials_file, env))
 
 
 # --------------------------------------------------------------------------------------------
@@ -383,11 +398,14 @@ class TierClient:
     :class:`RefusedError`. Node ids come from the namespace index of ``urn:tanklab``, looked up.
     """
 
-    def __init__(self, tier: Tier, url: str, tags: dict[str, Tag], timeout_s: float) -> None:
+    def __init__(
+        self, tier: Tier, url: str, tags: dict[str, Tag], timeout_s: float, identity: ClientIdentity
+    ) -> None:
         self.tier = tier
         self.url = url
         self.tags = tags
         self.timeout_s = timeout_s
+        self.identity = identity
         self._client: Client | None = None
         self.idx = 0
 
@@ -400,10 +418,18 @@ class TierClient:
     async def connect(self) -> TierClient:
         """Connect and look the namespace index up (both within the timeout)."""
         client = Client(self.url, timeout=self.timeout_s)
-        client.application_uri = APPLICATION_URIS["cli"]
         client.name = "tankctl"
         try:
+            await asyncio.wait_for(secure_client(client, self.identity), self.timeout_s)
             await asyncio.wait_for(client.connect(), self.timeout_s)
+        except SecurityError:
+            await _quiet_disconnect(client)
+            raise
+        except ua.UaStatusCodeError as e:
+            await _quiet_disconnect(client)
+            creds = self.identity.credentials
+            who = f"login as {creds.username!r}" if creds is not None else "login"
+            raise UnreachableError(self.tier, self.url, f"{who} refused: {ua.StatusCode(e.code).name}") from None
         except Exception as e:
             await _quiet_disconnect(client)
             raise UnreachableError(self.tier, self.url, _describe(e, self.timeout_s)) from None

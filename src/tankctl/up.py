@@ -30,8 +30,11 @@ from rich.text import Text
 
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
-from tanklab.tags import plant_tags, plc_tags, supervisor_tags, tags_by_path
+from tanklab.home import SecurityHome, default_home
+from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
 from tanklab.ua import Link
+from tanklab.ua_security import ClientIdentity, client_setup
+from tanklab.users import load_credentials
 
 TIERS = ("plant", "plc", "supervisor")
 READY_TIMEOUT_S = 60.0
@@ -101,11 +104,13 @@ class Stack:
     clock: Literal["realtime", "lockstep"]
     log_dir: Path
     host: str = "127.0.0.1"
+    home: SecurityHome = field(default_factory=lambda: SecurityHome(default_home()))
     tiers: dict[str, Tier] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         urls = {t: f"opc.tcp://{self.host}:{self.base_port + i}/tanklab/{t}" for i, t in enumerate(TIERS)}
         common = ["--config", str(self.config_path), "--host", self.host, "--speed", f"{self.speed:g}"]
+        common += ["--home", str(self.home.root)]
         lock = ["--lockstep"] if self.clock == "lockstep" else []
         state = self.log_dir / "plant-state.json"
         self.tiers = {
@@ -144,6 +149,11 @@ class Stack:
             env.pop(var, None)
         return env
 
+    def link(self, tier: str, tags: dict[str, Tag], name: str) -> Link:
+        """A reconnecting client of ``tier`` as the CLI (the board and the start-up checks)."""
+        identity = ClientIdentity(self.home, "cli", load_credentials(self.home.credentials_file, os.environ))
+        return Link(self.tiers[tier].url, tags, name=name, setup=client_setup(identity), timeout_s=2.0)
+
     async def start(self) -> None:
         """Start the tiers bottom-up; each must answer a read before the next starts.
 
@@ -162,7 +172,7 @@ class Stack:
             tier.name
         ]
         tags = {"plant": plant_tags, "plc": plc_tags, "supervisor": supervisor_tags}[tier.name](self.site)
-        link = Link(tier.url, {path: tags_by_path(tags)[path]}, name=tier.name, timeout_s=2.0)
+        link = self.link(tier.name, {path: tags_by_path(tags)[path]}, tier.name)
         deadline = time.monotonic() + READY_TIMEOUT_S
         try:
             while True:
@@ -223,8 +233,8 @@ class Board:
             p for p in ct if p.startswith(("PLC.Alarms.", "PLC.Interlock.")) and ct[p].kind == "variable"
         ]
         self.links = {
-            "plant": Link(stack.tiers["plant"].url, {p: pt[p] for p in self.plant_paths}, name="board-plant"),
-            "plc": Link(stack.tiers["plc"].url, {p: ct[p] for p in self.plc_paths}, name="board-plc"),
+            "plant": stack.link("plant", {p: pt[p] for p in self.plant_paths}, "board-plant"),
+            "plc": stack.link("plc", {p: ct[p] for p in self.plc_paths}, "board-plc"),
         }
         if "supervisor" in stack.tiers:
             st = tags_by_path(supervisor_tags(site))
@@ -235,8 +245,8 @@ class Board:
                 "Supervisor.Cycle",
                 "Supervisor.PlcConnected",
             ]
-            self.links["supervisor"] = Link(
-                stack.tiers["supervisor"].url, {p: st[p] for p in self.sup_paths}, name="board-supervisor"
+            self.links["supervisor"] = stack.link(
+                "supervisor", {p: st[p] for p in self.sup_paths}, "board-supervisor"
             )
         self.values: dict[str, Any] = {}
         self.reachable: dict[str, bool] = {}

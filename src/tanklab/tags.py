@@ -93,6 +93,10 @@ class Tag:
         (low, high) of the EURange; writes outside it are refused with BadOutOfRange.
     writers
         Roles that may write the variable or call the method; empty = read-only.
+    restricted
+        Pairs (role, values): that writer may only move the enumerated value between these
+        values (old and new both among them), e.g. the supervisor switches a loop only between
+        AUTO and REMOTE.
     description
         What the value means, with its array layout if it is an array.
     enum
@@ -111,6 +115,7 @@ class Tag:
     unit: str | None = None
     eu_range: tuple[float, float] | None = None
     writers: frozenset[Role] = NOBODY
+    restricted: tuple[tuple[Role, frozenset[int]], ...] = ()
     enum: type[IntEnum] | None = None
     inputs: tuple[Argument, ...] = ()
     outputs: tuple[Argument, ...] = ()
@@ -165,6 +170,7 @@ class _Builder:
         unit: str | None = None,
         eu_range: tuple[float, float] | None = None,
         writers: frozenset[Role] = NOBODY,
+        restricted: tuple[tuple[Role, frozenset[int]], ...] = (),
         enum: type[IntEnum] | None = None,
         initial: float | int | bool | str | list[float] | None = None,
     ) -> None:
@@ -178,6 +184,7 @@ class _Builder:
                 unit=unit,
                 eu_range=eu_range,
                 writers=writers,
+                restricted=restricted,
                 enum=enum,
                 initial=initial,
             )
@@ -203,6 +210,10 @@ class _Builder:
                 outputs=outputs,
             )
         )
+
+
+def _enum_name(tag: Tag, value: int) -> str:
+    return tag.enum(value).name if tag.enum is not None else str(value)
 
 
 def _enum_range(enum: type[IntEnum]) -> tuple[float, float]:
@@ -394,9 +405,21 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
             "MANUAL (ManualMV drives), AUTO (the block drives), REMOTE (the supervisor's RemoteMV drives).",
             eu_range=_enum_range(LoopMode),
             writers=OPERATOR_UP | {Role.SUPERVISOR},
+            restricted=((Role.SUPERVISOR, frozenset({int(LoopMode.AUTO), int(LoopMode.REMOTE)})),),
             enum=LoopMode,
             initial=int(lp.mode_enum),
         )
+        for item, text in (("SPLow", "lowest"), ("SPHigh", "highest")):
+            b.var(
+                f"{p}.{item}",
+                DataType.DOUBLE,
+                f"Program limit (engineer): the {text} setpoint an operator may write [m]; inside the "
+                f"config's {lp.sp_min_m:g} .. {lp.sp_max_m:g} m, and the current SP must stay inside.",
+                unit="m",
+                eu_range=(lp.sp_min_m, lp.sp_max_m),
+                writers=ENGINEER_ONLY,
+                initial=lp.sp_min_m if item == "SPLow" else lp.sp_max_m,
+            )
         b.var(
             f"{p}.ManualMV",
             DataType.DOUBLE,
@@ -652,7 +675,19 @@ def render_markdown(site: SiteConfig) -> str:
                 if t.enum is not None:
                     typ += " enum " + "/".join(f"{m.name}={int(m)}" for m in t.enum)
             rng = f"{t.eu_range[0]:g} .. {t.eu_range[1]:g}" if t.eu_range else ""
-            who = ", ".join(sorted(r.value for r in t.writers)) or "read-only"
+            limits = dict(t.restricted)
+            who = (
+                ", ".join(
+                    r.value
+                    + (
+                        " (" + "/".join(_enum_name(t, v) for v in sorted(limits[r])) + " only)"
+                        if r in limits
+                        else ""
+                    )
+                    for r in sorted(t.writers)
+                )
+                or "read-only"
+            )
             lines.append(f"| `{t.path}` | {typ} | {t.unit or ''} | {rng} | {who} | {t.description} |")
         lines.append("")
     return "\n".join(lines)

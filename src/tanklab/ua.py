@@ -11,10 +11,20 @@ Server side
     replaces the server's attribute service so that every client write to a tanklab node is
     validated before it is stored: wrong type -> BadTypeMismatch; NaN, infinity, outside
     EURange, unknown enum value -> BadOutOfRange; a non-Good status in the written DataValue ->
-    BadWriteNotSupported; a read-only node -> BadNotWritable; the tier's own check may refuse
-    with any status. A refused write leaves the old value. Writes of a batch are judged one by
-    one (each item gets its own status; accepted items are stored even if others are refused).
-    A client-supplied SourceTimestamp is ignored: the server stamps its own time.
+    BadWriteNotSupported; a read-only node -> BadNotWritable; a role not among the tag's
+    writers (or a restricted role moving the value outside its allowed set) ->
+    BadUserAccessDenied; the tier's own check may refuse with any status. A refused write leaves
+    the old value. Writes of a batch are judged one by one (each item gets its own status;
+    accepted items are stored even if others are refused: a batch is not atomic). A
+    client-supplied SourceTimestamp is ignored: the server stamps its own time. Method calls get
+    the same role check and precise status codes. Every write and call, accepted or refused, is
+    recorded in the tier's :class:`~tanklab.audit.AuditLog`.
+
+Who is asking
+    The session's user is a :class:`TankUser` (made by
+    :class:`tanklab.ua_security.TankUserManager`); the request being served sets
+    :data:`CURRENT_USER` (a context variable of the request's task) so that method handlers,
+    which asyncua calls without the session, know it too.
 
 Client side
     :func:`resolve` looks the namespace index of ``urn:tanklab`` up and returns the nodes of the
@@ -25,6 +35,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import logging
 import math
 from collections.abc import Awaitable, Callable, Iterable, Sequence
@@ -33,11 +44,12 @@ from datetime import UTC, datetime
 from typing import Any
 
 from asyncua import Client, Node, Server, ua
-from asyncua.crypto.permission_rules import User
+from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.address_space import AttributeService
 
+from tanklab.audit import AuditLog
 from tanklab.errors import LinkError
-from tanklab.tags import NAMESPACE_URI, DataType, Tag
+from tanklab.tags import NAMESPACE_URI, DataType, Role, Tag
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +75,51 @@ MethodHandler = Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]
 
 WriteHandler = Callable[[Tag, Any], ua.StatusCode | None]
 """A tier's own check and apply for a validated write: None accepts, a StatusCode refuses."""
+
+
+@dataclass
+class TankUser(User):
+    """A session's user: asyncua's non-admin user plus the tanklab role it acts in."""
+
+    tank_role: Role | None = None
+
+    @classmethod
+    def of(cls, name: str, role: Role) -> TankUser:
+        """A user ``name`` acting as ``role`` (never asyncua's Admin)."""
+        return cls(role=UserRole.User, name=name, tank_role=role)
+
+
+CURRENT_USER: contextvars.ContextVar[User | None] = contextvars.ContextVar(
+    "tanklab_current_user", default=None
+)
+"""The user of the request being served (set per request by the secure message processor)."""
+
+
+def who(user: User | None) -> tuple[str, str]:
+    """(user name, role name) of a session user, for refusals and the audit trail."""
+    if isinstance(user, TankUser) and user.tank_role is not None:
+        return user.name or "", user.tank_role.value
+    return (user.name or "") if user is not None else "", "none"
+
+
+def authorize(tag: Tag, user: User | None, old: Any = None, new: Any = None) -> ua.StatusCode | None:
+    """Whether ``user`` may write ``new`` over ``old`` (or call the method): None, or
+    BadUserAccessDenied.
+
+    The role must be among the tag's writers; a role listed in ``tag.restricted`` may only
+    move an enumerated value between the listed values (both old and new among them).
+    """
+    role = user.tank_role if isinstance(user, TankUser) else None
+    if role is None or role not in tag.writers:
+        return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+    allowed = dict(tag.restricted).get(role)
+    if allowed is not None:
+        try:
+            if int(old) not in allowed or int(new) not in allowed:
+                return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+        except (TypeError, ValueError):
+            return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+    return None
 
 
 def variant(tag: Tag, value: Any) -> ua.Variant:
@@ -164,7 +221,10 @@ async def _add_variable(server: Server, idx: int, parent: Node, tag: Tag) -> Nod
 
 
 async def build_nodes(
-    server: Server, tags: Iterable[Tag], methods: dict[str, MethodHandler] | None = None
+    server: Server,
+    tags: Iterable[Tag],
+    methods: dict[str, MethodHandler] | None = None,
+    audit: AuditLog | None = None,
 ) -> tuple[int, dict[str, Node]]:
     """Create every tag's node on ``server`` under the namespace ``urn:tanklab``.
 
@@ -174,6 +234,7 @@ async def build_nodes(
     tags : the tier's tags.
     methods : implementation of each method tag, keyed by path. A method without a handler is
         an error: the contract promises it.
+    audit : where calls are recorded (accepted or refused).
 
     Returns
     -------
@@ -192,7 +253,7 @@ async def build_nodes(
             node = await parent.add_method(
                 ua.NodeId(tag.path, idx),
                 ua.QualifiedName(tag.name, idx),
-                _method_adapter(tag, handler),
+                _method_adapter(tag, handler, audit),
                 [_argument(a) for a in tag.inputs],
                 [_argument(a) for a in tag.outputs],
             )
@@ -202,10 +263,26 @@ async def build_nodes(
     return idx, nodes
 
 
-def _method_adapter(tag: Tag, handler: MethodHandler) -> Callable[..., Awaitable[Any]]:
-    """Check argument count and types, unwrap Variants, and return precise status codes."""
+def _method_adapter(
+    tag: Tag, handler: MethodHandler, audit: AuditLog | None
+) -> Callable[..., Awaitable[Any]]:
+    """Check the caller's role, argument count and types, unwrap Variants, return precise
+    status codes, and record the call."""
 
     async def call(parent: ua.NodeId, *args: ua.Variant) -> Any:
+        user = CURRENT_USER.get()
+        result = await _checked_call(user, args)
+        if audit is not None:
+            name, role = who(user)
+            status = result if isinstance(result, ua.StatusCode) else ua.StatusCode(ua.StatusCodes.Good)
+            shown = [a.Value if isinstance(a, ua.Variant) else repr(a) for a in args]
+            audit.record("call", user=name, role=role, node=tag.path, new=shown, status=status.name)
+        return result
+
+    async def _checked_call(user: User | None, args: tuple[ua.Variant, ...]) -> Any:
+        denied = authorize(tag, user)
+        if denied is not None:
+            return denied
         if len(args) != len(tag.inputs):
             return ua.StatusCode(
                 ua.StatusCodes.BadArgumentsMissing
@@ -221,7 +298,13 @@ def _method_adapter(tag: Tag, handler: MethodHandler) -> Callable[..., Awaitable
             if (arg.data_type == DataType.DOUBLE_ARRAY) != is_list:
                 return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
             values.append(v.Value)
-        return await handler(*values)
+        try:
+            return await handler(*values)
+        except Exception:
+            # A handler bug must still answer precisely and leave a trace, not a bare
+            # BadUnexpectedError from asyncua.
+            log.exception("method %s failed", tag.path)
+            return ua.StatusCode(ua.StatusCodes.BadInternalError)
 
     return call
 
@@ -260,13 +343,21 @@ class WriteGuard(AttributeService):
     """The server's attribute service with the contract's write validation in front.
 
     Install with :func:`install_write_guard`. Writes to nodes outside the guarded set (the
-    standard namespace) go to asyncua's own checks unchanged.
+    standard namespace) go to asyncua's own checks unchanged (a non-admin user may not write
+    them).
     """
 
-    def __init__(self, base: AttributeService, tags_by_nodeid: dict[ua.NodeId, Tag], on_write: WriteHandler):
+    def __init__(
+        self,
+        base: AttributeService,
+        tags_by_nodeid: dict[ua.NodeId, Tag],
+        on_write: WriteHandler,
+        audit: AuditLog | None = None,
+    ):
         super().__init__(base._aspace)
         self._tags = tags_by_nodeid
         self._on_write = on_write
+        self._audit = audit
         self.refused = 0
         self.accepted = 0
 
@@ -276,32 +367,47 @@ class WriteGuard(AttributeService):
             tag = self._tags.get(wv.NodeId)
             if tag is None:
                 sub = ua.WriteParameters(NodesToWrite=[wv])
-                results.extend(await (super().write(sub, user) if user else super().write(sub)))
+                results.extend(await super().write(sub, user or User()))
                 continue
-            status = self._judge(tag, wv)
+            old = self._aspace.read_attribute_value(wv.NodeId, ua.AttributeIds.Value).Value
+            old_value = old.Value if old is not None else None
+            new_value = wv.Value.Value.Value if wv.Value is not None and wv.Value.Value is not None else None
+            status = self._judge(tag, wv, user, old_value)
             if status is None:
-                stamped = ua.DataValue(
-                    Value=wv.Value.Value,
-                    SourceTimestamp=datetime.now(UTC),
-                    ServerTimestamp=datetime.now(UTC),
-                )
+                now = datetime.now(UTC)
+                stamped = ua.DataValue(Value=wv.Value.Value, SourceTimestamp=now, ServerTimestamp=now)
                 status = await self._aspace.write_attribute_value(wv.NodeId, ua.AttributeIds.Value, stamped)
             if status.is_good():
                 self.accepted += 1
             else:
                 self.refused += 1
                 log.info("write to %s refused: %s", tag.path, status.name)
+            if self._audit is not None:
+                name, role = who(user)
+                self._audit.record(
+                    "write",
+                    user=name,
+                    role=role,
+                    node=tag.path,
+                    old=old_value,
+                    new=new_value,
+                    status=status.name,
+                )
             results.append(status)
         return results
 
-    def _judge(self, tag: Tag, wv: ua.WriteValue) -> ua.StatusCode | None:
+    def _judge(self, tag: Tag, wv: ua.WriteValue, user: User | None, old: Any) -> ua.StatusCode | None:
         if wv.AttributeId != ua.AttributeIds.Value:
             return ua.StatusCode(ua.StatusCodes.BadNotWritable)
         if tag.kind != "variable" or not tag.writable:
             return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+        dv = wv.Value
+        new = dv.Value.Value if dv is not None and dv.Value is not None else None
+        denied = authorize(tag, user, old, new)
+        if denied is not None:
+            return denied
         if wv.IndexRange:
             return ua.StatusCode(ua.StatusCodes.BadWriteNotSupported)
-        dv = wv.Value
         if dv is None:
             return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
         if dv.StatusCode is not None and not dv.StatusCode.is_good():
@@ -314,12 +420,16 @@ class WriteGuard(AttributeService):
 
 
 def install_write_guard(
-    server: Server, tags: Iterable[Tag], nodes: dict[str, Node], on_write: WriteHandler
+    server: Server,
+    tags: Iterable[Tag],
+    nodes: dict[str, Node],
+    on_write: WriteHandler,
+    audit: AuditLog | None = None,
 ) -> WriteGuard:
     """Put a :class:`WriteGuard` in front of ``server``'s attribute service."""
     by_id = {nodes[t.path].nodeid: t for t in tags if t.path in nodes and t.kind == "variable"}
     iserver = server.iserver
-    guard = WriteGuard(iserver.attribute_service, by_id, on_write)
+    guard = WriteGuard(iserver.attribute_service, by_id, on_write, audit)
     iserver.attribute_service = guard
     return guard
 
@@ -378,6 +488,10 @@ async def write_value(node: Node, tag: Tag, value: Any) -> ua.StatusCode:
     return result[0]
 
 
+ClientSetup = Callable[[Client], Awaitable[None]]
+"""Prepares a new client before it connects (security policy, certificate, identity):
+:func:`tanklab.ua_security.client_setup`."""
+
 SESSION_TIMEOUT_MS = 30_000
 """Session timeout a link asks for [ms]: a dead client's session is dropped within 30 s."""
 
@@ -385,7 +499,8 @@ SESSION_TIMEOUT_MS = 30_000
 class Link:
     """An OPC UA client link to the tier below that never crashes its owner.
 
-    Every request is bounded by ``timeout_s``; any failure marks the link unhealthy, drops the
+    Each new client is prepared by ``setup`` (the secure channel and the identity). Every
+    request is bounded by ``timeout_s``; any failure marks the link unhealthy, drops the
     connection and raises :class:`~tanklab.errors.LinkError` once. :meth:`ensure` reconnects
     with exponential backoff (0.5 s doubling to ``max_backoff_s`` of wall time) and resolves the
     nodes again, so the owner calls it every cycle and carries on with its last good values
@@ -393,9 +508,17 @@ class Link:
     """
 
     def __init__(
-        self, url: str, tags: dict[str, Tag], *, name: str, timeout_s: float = 2.0, max_backoff_s: float = 5.0
+        self,
+        url: str,
+        tags: dict[str, Tag],
+        *,
+        name: str,
+        setup: ClientSetup,
+        timeout_s: float = 2.0,
+        max_backoff_s: float = 5.0,
     ) -> None:
         self.url = url
+        self.setup = setup
         self.tags = tags
         self.name = name
         self.timeout_s = timeout_s
@@ -419,6 +542,7 @@ class Link:
         client = Client(self.url, timeout=self.timeout_s)
         client.session_timeout = SESSION_TIMEOUT_MS
         try:
+            await asyncio.wait_for(self.setup(client), self.timeout_s)
             await asyncio.wait_for(client.connect(), self.timeout_s)
             self.idx = await asyncio.wait_for(namespace_index(client), self.timeout_s)
         except Exception as e:

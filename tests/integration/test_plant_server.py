@@ -14,9 +14,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from asyncua import Client, ua
+from asyncua import ua
 
-from helpers import free_port, wait_until
+from helpers import free_port, secure, server_security, wait_until
 from plant_sim.runtime import run_plant
 from tanklab.config import load_site
 from tanklab.ua import read_values, resolve
@@ -31,7 +31,9 @@ async def plant_url():
     port = free_port()
     stop, ready = asyncio.Event(), asyncio.Event()
     task = asyncio.create_task(
-        run_plant(SITE, host="127.0.0.1", port=port, speed=4.0, stop=stop, ready=ready)
+        run_plant(
+            SITE, host="127.0.0.1", port=port, security=server_security(), speed=4.0, stop=stop, ready=ready
+        )
     )
     await wait_until(ready.is_set, 20, what="plant server ready")
     yield f"opc.tcp://127.0.0.1:{port}/tanklab/plant"
@@ -41,12 +43,14 @@ async def plant_url():
 
 async def test_pump_command_raises_the_level_at_q_over_at(plant_url: str) -> None:
     q = 1.0e-4
-    async with Client(plant_url) as client:
-        n = await resolve(
-            client, ["Plant.T1.Level", "Plant.Sim.Time", "Plant.P1.Command", "Plant.V13.Opening"]
-        )
-        # Close V13 so that T1 has no outflow: its level must then rise at exactly Q / At.
-        await n["Plant.V13.Opening"].write_value(ua.Variant(0.0, ua.VariantType.Double))
+    # Close V13 (an operator's write) so that T1 has no outflow: its level must then rise at
+    # exactly Q / At.
+    async with await secure(plant_url, "operator") as operator:
+        v13 = (await resolve(operator, ["Plant.V13.Opening"]))["Plant.V13.Opening"]
+        await v13.write_value(ua.Variant(0.0, ua.VariantType.Double))
+    # Pump commands are the PLC's: this client acts with the PLC's certificate.
+    async with await secure(plant_url, tier="plc") as client:
+        n = await resolve(client, ["Plant.T1.Level", "Plant.Sim.Time", "Plant.P1.Command"])
         await n["Plant.P1.Command"].write_value(ua.Variant(q, ua.VariantType.Double))
         h_a, t_a = await read_values(client, [n["Plant.T1.Level"], n["Plant.Sim.Time"]])
 
@@ -64,7 +68,21 @@ async def test_pump_command_raises_the_level_at_q_over_at(plant_url: str) -> Non
 
 
 async def test_bad_writes_are_refused_and_the_old_value_stays(plant_url: str) -> None:
-    async with Client(plant_url) as client:
+    async with await secure(plant_url, tier="plc") as plc:
+        cmd = (await resolve(plc, ["Plant.P1.Command"]))["Plant.P1.Command"]
+        before = await cmd.read_value()
+        with pytest.raises(ua.UaStatusCodeError) as err:
+            await cmd.write_value(ua.Variant(-1e-5, ua.VariantType.Double))
+        assert type(err.value).__name__ == "BadOutOfRange"
+        assert await cmd.read_value() == before
+        # Advance is for lock-step only.
+        idx = cmd.nodeid.NamespaceIndex
+        with pytest.raises(ua.UaStatusCodeError) as err:
+            await plc.get_node(ua.NodeId("Plant.Sim", idx)).call_method(
+                ua.NodeId("Plant.Sim.Advance", idx), 1.0, [0.0, 0.0]
+            )
+        assert type(err.value).__name__ == "BadInvalidState"
+    async with await secure(plant_url, "engineer") as client:
         n = await resolve(
             client,
             [
@@ -82,7 +100,7 @@ async def test_bad_writes_are_refused_and_the_old_value_stays(plant_url: str) ->
             ("Plant.T1.Leak", ua.Variant(float("inf"), ua.VariantType.Double), "BadOutOfRange"),
             ("Plant.T1.Leak", ua.Variant(1, ua.VariantType.Int32), "BadTypeMismatch"),
             ("Plant.T1.Leak", ua.Variant("open", ua.VariantType.String), "BadTypeMismatch"),
-            ("Plant.P1.Command", ua.Variant(-1e-5, ua.VariantType.Double), "BadOutOfRange"),
+            ("Plant.P1.Command", ua.Variant(1e-5, ua.VariantType.Double), "BadUserAccessDenied"),
             ("Plant.LT1.Fault", ua.Variant(9, ua.VariantType.Int32), "BadOutOfRange"),
             ("Plant.T2.Disturbance", ua.Variant(1.0, ua.VariantType.Double), "BadOutOfRange"),
             ("Plant.T1.Level", ua.Variant(0.3, ua.VariantType.Double), "BadNotWritable"),
@@ -103,16 +121,10 @@ async def test_bad_writes_are_refused_and_the_old_value_stays(plant_url: str) ->
             await n["Plant.T1.Leak"].write_attribute(ua.AttributeIds.Value, dv)
         assert type(err.value).__name__ == "BadWriteNotSupported"
         assert await n["Plant.T1.Leak"].read_value() == 0.25
-        # Advance is for lock-step only.
-        sim = client.get_node(n["Plant.T1.Leak"].nodeid).nodeid.NamespaceIndex
-        obj = client.get_node(ua.NodeId("Plant.Sim", sim))
-        with pytest.raises(ua.UaStatusCodeError) as err:
-            await obj.call_method(ua.NodeId("Plant.Sim.Advance", sim), 1.0, [0.0, 0.0])
-        assert type(err.value).__name__ == "BadInvalidState"
 
 
 async def test_analog_nodes_carry_eurange_and_units(plant_url: str) -> None:
-    async with Client(plant_url) as client:
+    async with await secure(plant_url, "observer") as client:
         node = (await resolve(client, ["Plant.T1.Level"]))["Plant.T1.Level"]
         props = {(await c.read_browse_name()).Name: await c.read_value() for c in await node.get_properties()}
         assert props["EURange"].Low == 0.0 and props["EURange"].High == pytest.approx(0.62)
@@ -147,7 +159,7 @@ async def test_tankctl_plant_prints_its_endpoint_and_stops_on_sigterm(tmp_path: 
         assert proc.stdout is not None
         line = await asyncio.wait_for(proc.stdout.readline(), 30)
         assert f"opc.tcp://127.0.0.1:{port}/tanklab/plant" in line.decode()
-        async with Client(f"opc.tcp://127.0.0.1:{port}/tanklab/plant") as client:
+        async with await secure(f"opc.tcp://127.0.0.1:{port}/tanklab/plant", "operator") as client:
             leak = (await resolve(client, ["Plant.T1.Leak"]))["Plant.T1.Leak"]
             await leak.write_value(ua.Variant(0.4, ua.VariantType.Double))
         proc.send_signal(signal.SIGTERM)

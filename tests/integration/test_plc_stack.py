@@ -6,12 +6,13 @@ processes goes through ``wait_until`` only.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
-from asyncua import Client, ua
+from asyncua import ua
 
-from helpers import ROOT, TierProcess, free_port, wait_until
+from helpers import ROOT, TierProcess, free_port, secure, wait_until
 from tanklab.ua import resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
@@ -57,7 +58,7 @@ PATHS = [
 
 async def test_plc_tracks_a_setpoint_step_through_the_real_plant(stack) -> None:
     _, url = stack
-    async with Client(url) as client:
+    async with await secure(url) as client:
         n = await resolve(client, PATHS)
 
         # From empty tanks the fixed PIDs fill T1 to 0.4 m; then step the setpoint to 0.3 m.
@@ -78,7 +79,7 @@ async def test_plc_tracks_a_setpoint_step_through_the_real_plant(stack) -> None:
 
 async def test_bad_writes_are_refused_and_values_stay(stack) -> None:
     _, url = stack
-    async with Client(url) as client:
+    async with await secure(url) as client:
         n = await resolve(client, PATHS)
         cases = [
             ("PLC.LIC1.SP", ua.Variant(0.61, ua.VariantType.Double), "BadOutOfRange"),
@@ -90,10 +91,10 @@ async def test_bad_writes_are_refused_and_values_stay(stack) -> None:
             ("PLC.LIC1.Mode", ua.Variant(1.0, ua.VariantType.Double), "BadTypeMismatch"),
             ("PLC.LIC1.ManualMV", ua.Variant(2e-4, ua.VariantType.Double), "BadOutOfRange"),
             ("PLC.LIC1.ManualMV", ua.Variant(float("nan"), ua.VariantType.Double), "BadOutOfRange"),
-            ("PLC.LIC1.RemoteMV", ua.Variant(-1e-5, ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.LIC1.RemoteMV", ua.Variant(1e-5, ua.VariantType.Double), "BadUserAccessDenied"),
             ("PLC.LIC1.Kp", ua.Variant(1e-3, ua.VariantType.Double), "BadNotWritable"),
             ("PLC.LIC1.GainSource", ua.Variant(1, ua.VariantType.Int32), "BadNotWritable"),
-            ("PLC.Supervisor.Heartbeat", ua.Variant(1.5, ua.VariantType.Double), "BadTypeMismatch"),
+            ("PLC.Supervisor.Heartbeat", ua.Variant(7, ua.VariantType.UInt32), "BadUserAccessDenied"),
         ]
         for path, value, expected in cases:
             before = await n[path].read_value()
@@ -119,11 +120,24 @@ async def test_bad_writes_are_refused_and_values_stay(stack) -> None:
                 await obj.call_method(method, *args)
             assert type(err.value).__name__ == expected, args
         assert await n["PLC.LIC1.Kp"].read_value() == kp_before
+    # The supervisor's own nodes get the contract's checks when the supervisor writes them.
+    async with await secure(url, tier="supervisor") as sup:
+        n = await resolve(sup, ["PLC.LIC1.RemoteMV", "PLC.Supervisor.Heartbeat", "PLC.LIC1.SP"])
+        for path, value, expected in (
+            ("PLC.LIC1.RemoteMV", ua.Variant(-1e-5, ua.VariantType.Double), "BadOutOfRange"),
+            ("PLC.Supervisor.Heartbeat", ua.Variant(1.5, ua.VariantType.Double), "BadTypeMismatch"),
+            ("PLC.LIC1.SP", ua.Variant(0.3, ua.VariantType.Double), "BadUserAccessDenied"),
+        ):
+            before = await n[path].read_value()
+            with pytest.raises(ua.UaStatusCodeError) as err:
+                await n[path].write_value(value)
+            assert type(err.value).__name__ == expected, (path, value)
+            assert await n[path].read_value() == before, path
 
 
 async def test_heartbeat_gains_and_fallback_within_timeout_plus_one_scan(stack) -> None:
     _, url = stack
-    async with Client(url) as client:
+    async with await secure(url, tier="supervisor") as client:
         n = await resolve(client, PATHS)
         idx = n["PLC.LIC1.SP"].nodeid.NamespaceIndex
         obj = client.get_node(ua.NodeId("PLC.LIC1", idx))
@@ -172,7 +186,7 @@ async def _scan_after(n, scan0: int) -> bool:
 
 async def test_plant_killed_and_restarted_plc_reports_reconnects_and_regulates(stack) -> None:
     procs, url = stack
-    async with Client(url) as client:
+    async with await secure(url) as client:
         n = await resolve(client, PATHS)
 
         async def near_sp() -> bool:
@@ -220,19 +234,25 @@ async def test_plc_warm_restart_keeps_setpoint_and_mode(tmp_path: Path) -> None:
     plc = await TierProcess(*args).start()
     url = f"opc.tcp://127.0.0.1:{cp}/tanklab/plc"
     try:
-        async with Client(url) as client:
+        async with await secure(url) as client:
             n = await resolve(client, ["PLC.LIC1.SP", "PLC.LIC2.Mode"])
             await n["PLC.LIC1.SP"].write_value(ua.Variant(0.35, ua.VariantType.Double))
             await n["PLC.LIC2.Mode"].write_value(ua.Variant(0, ua.VariantType.Int32))  # MANUAL
 
             async def retained() -> bool:
                 p = tmp_path / "plc-retain.json"
-                return p.exists() and '"LIC2": {"sp_m": 0.2, "mode": "MANUAL"' in p.read_text()
+                if not p.exists():
+                    return False
+                try:
+                    loops = json.loads(p.read_text())["loops"]
+                except ValueError:  # caught between write and rename: not yet
+                    return False
+                return loops["LIC2"]["mode"] == "MANUAL" and loops["LIC1"]["sp_m"] == 0.35
 
             await wait_until(retained, 20, what="the retentive memory written")
         assert await plc.stop() == 0
         plc = await TierProcess(*args).start()
-        async with Client(url) as client:
+        async with await secure(url) as client:
             n = await resolve(client, ["PLC.LIC1.SP", "PLC.LIC2.Mode"])
             assert await n["PLC.LIC1.SP"].read_value() == 0.35
             assert await n["PLC.LIC2.Mode"].read_value() == 0

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from asyncua import Client
 
-from helpers import ROOT, TierProcess, free_base_port, wait_until
+from helpers import ROOT, TierProcess, free_base_port, secure, wait_until
 from tanklab.enums import GainSource, LoopMode
 from tanklab.ua import resolve
 
@@ -103,7 +103,7 @@ async def model_time(client: Client) -> float:
 async def lockstep_stack(tmp_path: Path):
     base = free_base_port()
     up = await Up(CONFIG, base, tmp_path / "var", "--clock", "lockstep").start()
-    async with Client(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
+    async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
         yield base, plc, up
     assert await up.stop() == 0
 
@@ -176,7 +176,7 @@ async def test_plant_killed_and_restarted_by_up_everything_recovers(tmp_path: Pa
     base = free_base_port()
     up = await Up(config, base, tmp_path / "var", "--speed", "20").start()
     try:
-        async with Client(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
+        async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
             await wait_until(lambda: _near(plc, "PLC.LIC1.PV", 0.4, 0.02), 90, what="T1 near 0.4 m")
             plc_pid = up.pid("plc", "three_tank_energies_sim")
             os.kill(up.pid("plant", "three_tank_energies_sim"), signal.SIGKILL)
@@ -222,7 +222,7 @@ async def test_supervisor_killed_plc_falls_back_and_holds_the_level(tmp_path: Pa
     ).start()
     sup = await TierProcess("supervisor", *common, "--port", str(base + 2), "--plc-url", urls[1]).start()
     try:
-        async with Client(urls[1]) as plc:
+        async with await secure(urls[1]) as plc:
             await wait_until(lambda: _near(plc, "PLC.LIC1.PV", 0.4, 0.01), 120, what="T1 at 0.4 m")
             # Put the loops on supervisor gains, then kill the supervisor.
             assert tankctl("mode", "adaptive-pid", base=base).returncode == 0
@@ -292,7 +292,7 @@ async def test_realtime_speed_20_smoke(tmp_path: Path) -> None:
     base = free_base_port()
     up = await Up(CONFIG, base, tmp_path / "var", "--speed", "20").start()
     try:
-        async with Client(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
+        async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
             await wait_until(
                 lambda: _near(plc, "PLC.LIC1.PV", 0.4, 0.02), 90, what="T1 near 0.4 m at speed 20"
             )

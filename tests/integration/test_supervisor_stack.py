@@ -6,9 +6,9 @@ Assertions are on the PLC's model time and on published values; waits go through
 from __future__ import annotations
 
 import pytest
-from asyncua import Client, ua
+from asyncua import ua
 
-from helpers import ROOT, TierProcess, free_port, wait_until
+from helpers import ROOT, TierProcess, free_port, secure, wait_until
 from tanklab.enums import GainSource, LoopMode, SupervisorMode
 from tanklab.ua import resolve
 
@@ -38,7 +38,7 @@ async def stack():
 
 async def test_adaptive_pid_pushes_gains_the_plc_accepts(stack) -> None:
     plc_url, sup_url = stack
-    async with Client(sup_url) as sup, Client(plc_url) as plc:
+    async with await secure(sup_url) as sup, await secure(plc_url) as plc:
         s = await resolve(sup, ["Supervisor.Mode", "Supervisor.RLS.LIC1.Accepted", "Supervisor.PlcConnected"])
         gains = [f"PLC.LIC{j}.{g}" for j in (1, 2) for g in ("Kp", "Ki", "Kd")]
         p = await resolve(plc, ["PLC.LIC1.GainSource", "PLC.Supervisor.Alive", *gains])
@@ -62,7 +62,7 @@ async def test_adaptive_pid_pushes_gains_the_plc_accepts(stack) -> None:
 
 async def test_mpc_mode_puts_loops_in_remote_and_tracks_a_step(stack) -> None:
     plc_url, sup_url = stack
-    async with Client(sup_url) as sup, Client(plc_url) as plc:
+    async with await secure(sup_url) as sup, await secure(plc_url) as plc:
         s = await resolve(sup, ["Supervisor.Mode"])
         p = await resolve(
             plc,

@@ -27,10 +27,9 @@ from typing import Any
 
 import pytest
 import typer
-from asyncua import Client
 from typer.testing import CliRunner
 
-from helpers import ROOT, free_base_port, free_port, wait_until
+from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, wait_until
 from tankctl.ops import TIERS, UsageError, level_bar, register, resolve_endpoints, sparkline
 from tanklab.config import load_site
 from tanklab.enums import LoopMode, SupervisorMode
@@ -175,7 +174,7 @@ def read(url: str, *paths: str) -> list[Any]:
     """Values read by an independent client."""
 
     async def main() -> list[Any]:
-        async with Client(url) as client:
+        async with await secure(url) as client:
             nodes = await resolve(client, list(paths))
             return [await nodes[p].read_value() for p in paths]
 
@@ -186,7 +185,7 @@ def wait_for(url: str, path: str, ok: Callable[[Any], bool], what: str, deadline
     """Bounded wait until ``ok(value of path)``."""
 
     async def main() -> None:
-        async with Client(url) as client:
+        async with await secure(url) as client:
             node = (await resolve(client, [path]))[path]
 
             async def cond() -> bool:
@@ -292,6 +291,24 @@ def test_setpoint_out_of_range_is_refused_and_the_value_stays(stack: Stack) -> N
     assert one_line(ran.stderr) == "tankctl: PLC.LIC1.SP = 0.7 refused: BadOutOfRange"
     assert ran.stdout == ""
     assert read(stack.url("plc"), "PLC.LIC1.SP") == [before]
+
+
+def test_a_role_without_the_right_is_refused_and_the_value_stays(stack: Stack) -> None:
+    (before,) = read(stack.url("plc"), "PLC.LIC1.SP")
+    env = {"TANKLAB_USER": "observer", "TANKLAB_PASSWORD": TEST_PASSWORDS["observer"]}
+    ran = proc("setpoint", "LIC1", "0.42", *base(stack), env=env)
+    assert ran.code == 1
+    assert one_line(ran.stderr) == "tankctl: PLC.LIC1.SP = 0.42 refused: BadUserAccessDenied"
+    assert read(stack.url("plc"), "PLC.LIC1.SP") == [before]
+
+
+def test_a_refused_login_is_one_line_and_exit_2(stack: Stack) -> None:
+    env = {"TANKLAB_USER": "nobody", "TANKLAB_PASSWORD": "not-a-password-at-all"}
+    ran = proc("setpoint", "LIC1", "0.42", *base(stack), env=env)
+    assert ran.code == 2
+    assert one_line(ran.stderr) == (
+        f"tankctl: cannot reach plc at {stack.url('plc')}: login as 'nobody' refused: BadUserAccessDenied"
+    )
 
 
 def test_leak_opens_and_off_closes_through_the_environment_url(stack: Stack) -> None:

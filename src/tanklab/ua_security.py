@@ -1,0 +1,570 @@
+"""Secure OPC UA for the three tiers and their clients: endpoints, identities, roles, limits.
+
+Server side (:func:`secure_server`)
+    * Endpoints: SignAndEncrypt with Basic256Sha256 and Aes128Sha256RsaOaep only. An
+      unencrypted (None) channel still opens, because clients need it to fetch the endpoints and
+      the server certificate, but :class:`_SecureProcessor` answers every request on it other
+      than GetEndpoints, FindServers and CloseSecureChannel with BadSecurityModeRejected, so the
+      plaintext-session bypass of asyncua's permission ruleset (upstream issue #1014) is closed.
+    * Certificates: the client's application certificate must be the one that signed the
+      secure channel, be trusted (the tanklab CA or ``tankctl pki trust``), unexpired, not
+      revoked, and carry the client's ApplicationUri: else BadCertificateUntrusted /
+      BadCertificateTimeInvalid / BadCertificateRevoked / BadCertificateUriInvalid /
+      BadCertificateInvalid. The trust list and CRL are re-read when their folders change.
+    * Identities (:class:`TankUserManager`): a user name and password from the users file
+      (scrypt), acting in the user's role; or an X509 identity token with a tier certificate of
+      the PKI (the supervisor's on the PLC: role Supervisor; the PLC's on the plant: role PLC;
+      a tier's own on its own server: Observer, for its health probe). Anonymous sessions are
+      refused. Five failed logins lock a user name for 60 s.
+    * Roles are checked per node by :class:`tanklab.ua.WriteGuard` and the method adapter.
+    * Audit: every write and call (accepted or refused) and every refused session activation
+      goes to the tier's :class:`~tanklab.audit.AuditLog` and is raised as a
+      ``TanklabAuditEventType`` event on the Server object.
+    * Limits (:data:`LIMITS`): 64 KiB chunks, at most 4 per message (256 KiB), 16 queued
+      messages per connection, 256 connections, 2 s to finish the handshake (Hello through
+      ActivateSession), sessions of at most 30 s timeout; a chunk header announcing more than the
+      chunk limit closes the connection at once.
+
+Client side (:func:`secure_client`)
+    A tier (PLC to plant, supervisor to PLC) connects with its own certificate on the channel
+    and as X509 identity; the CLI with its certificate on the channel and a user name and
+    password (:func:`tanklab.users.load_credentials`). Both check the server certificate
+    against the same trust list.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from asyncua import Client, Server, ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto import uacrypto
+from asyncua.crypto.permission_rules import User
+from asyncua.crypto.security_policies import SecurityPolicyAes128Sha256RsaOaep, SecurityPolicyBasic256Sha256
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+from asyncua.server.binary_server_asyncio import BinaryServer, OPCUAProtocol
+from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.ua_binary import struct_from_binary
+from cryptography import x509
+
+from tanklab.audit import AuditLog, AuditRecord
+from tanklab.errors import SecurityError
+from tanklab.home import SecurityHome
+from tanklab.pki import Pki
+from tanklab.tags import APPLICATION_URIS, NAMESPACE_URI, Role, Tag, tags_by_path
+from tanklab.ua import (
+    CURRENT_USER,
+    ClientSetup,
+    MethodHandler,
+    Publisher,
+    TankUser,
+    WriteGuard,
+    WriteHandler,
+    build_nodes,
+    install_write_guard,
+)
+from tanklab.users import Credentials, Lockout, UsersFile
+
+log = logging.getLogger(__name__)
+
+SECURITY_POLICIES = [
+    ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+    ua.SecurityPolicyType.Aes128Sha256RsaOaep_SignAndEncrypt,
+]
+"""The endpoints every tier offers (nothing unencrypted, nothing sign-only)."""
+
+CLIENT_POLICIES = {
+    "Basic256Sha256": SecurityPolicyBasic256Sha256,
+    "Aes128Sha256RsaOaep": SecurityPolicyAes128Sha256RsaOaep,
+}
+"""Policies a tanklab client can pick by name (default Basic256Sha256)."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Transport and session limits of a tier's server."""
+
+    chunk_bytes: int = 65_535
+    max_chunks: int = 4
+    max_pending_messages: int = 16
+    max_connections: int = 256
+    handshake_s: float = 2.0
+    max_session_timeout_ms: float = 30_000.0
+
+    @property
+    def message_bytes(self) -> int:
+        """Largest request a client may send [bytes]."""
+        return self.chunk_bytes * self.max_chunks
+
+
+LIMITS = Limits()
+
+# Tier certificate -> the role it acts in, on the server of the tier below.
+# (A tier's own certificate observes its own server: that is how its health probe reads.)
+_IDENTITY_ROLES: dict[str, dict[str, Role]] = {
+    "plant": {"plc": Role.PLC, "plant": Role.OBSERVER},
+    "plc": {"supervisor": Role.SUPERVISOR, "plc": Role.OBSERVER},
+    "supervisor": {"supervisor": Role.OBSERVER},
+}
+
+_DISCOVERY = frozenset(
+    ua.NodeId(i)
+    for i in (
+        ua.ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.FindServersRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.FindServersOnNetworkRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.CloseSecureChannelRequest_Encoding_DefaultBinary,
+    )
+)
+_CREATE_SESSION = ua.NodeId(ua.ObjectIds.CreateSessionRequest_Encoding_DefaultBinary)
+_ACTIVATE_SESSION = ua.NodeId(ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary)
+_TCP_TYPES = frozenset({b"HEL", b"ACK", b"ERR", b"RHE", b"OPN", b"CLO", b"MSG"})
+
+
+# --------------------------------------------------------------------------------------------
+# Identities
+# --------------------------------------------------------------------------------------------
+
+
+class TankUserManager:
+    """asyncua user manager: users file (password) or tier certificate (X509) -> TankUser.
+
+    Parameters
+    ----------
+    users_file : the users file; re-read when it changes, so ``tankctl user add`` needs no
+        restart.
+    identities : DER of a tier certificate -> (identity name, role) it acts in here.
+    audit : where refused activations are recorded.
+    lockout : the failed-login bookkeeping (5 failures lock for 60 s by default).
+    clock : monotonic seconds (injected for tests of the lockout).
+    """
+
+    def __init__(
+        self,
+        users_file: Path,
+        identities: dict[bytes, tuple[str, Role]],
+        audit: AuditLog,
+        *,
+        lockout: Lockout | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.users_file = users_file
+        self.identities = identities
+        self.audit = audit
+        self.lockout = lockout or Lockout()
+        self.clock = clock
+        self._users: UsersFile | None = None
+        self._stamp: tuple[float, int] | None = None
+
+    def _current_users(self) -> UsersFile:
+        try:
+            st = self.users_file.stat()
+            stamp: tuple[float, int] | None = (st.st_mtime, st.st_size)
+        except FileNotFoundError:
+            stamp = None
+        if self._users is None or stamp != self._stamp:
+            self._users = UsersFile.load(self.users_file)
+            self._stamp = stamp
+        return self._users
+
+    def get_user(
+        self, iserver: Any, username: str | None = None, password: str | None = None, certificate: Any = None
+    ) -> User | None:
+        """The session's user, or None (asyncua answers BadUserAccessDenied)."""
+        if username is not None:
+            return self._password_user(username, password or "")
+        if certificate is not None:
+            der = certificate if isinstance(certificate, bytes) else uacrypto.der_from_x509(certificate)
+            found = self.identities.get(der)
+            if found is not None:
+                return TankUser.of(found[0], found[1])
+            self._refuse("certificate", "certificate not a tier identity here")
+            return None
+        self._refuse("anonymous", "anonymous sessions are not allowed")
+        return None
+
+    def _password_user(self, username: str, password: str) -> User | None:
+        now = self.clock()
+        if self.lockout.locked(username, now):
+            self._refuse(username, "locked")
+            return None
+        try:
+            role = self._current_users().verify(username, password)
+        except Exception as e:  # a broken users file refuses everybody, loudly
+            log.error("users file %s unusable: %s", self.users_file, e)
+            role = None
+        if role is None:
+            locks = self.lockout.failed(username, now)
+            self._refuse(username, "locked after repeated failures" if locks else "bad user name or password")
+            return None
+        self.lockout.succeeded(username)
+        return TankUser.of(username, role)
+
+    def _refuse(self, user: str, reason: str) -> None:
+        log.warning("session activation refused for %r: %s", user, reason)
+        self.audit.record("activate", user=user, role="none", new=reason, status="BadUserAccessDenied")
+
+
+def tier_identities(pki: Pki, tier: str) -> dict[bytes, tuple[str, Role]]:
+    """The tier certificates that may act on ``tier``'s server, with their roles."""
+    out: dict[bytes, tuple[str, Role]] = {}
+    for name, role in _IDENTITY_ROLES[tier].items():
+        out[pki.cert_path(name).read_bytes()] = (name, role)
+    return out
+
+
+class ReloadingValidator:
+    """asyncua certificate validator over the PKI's trust list and CRL, re-read on change.
+
+    Checks validity period, the ApplicationUri in the subjectAltName, trust (directly or by
+    the tanklab CA) and revocation.
+    """
+
+    OPTIONS = (
+        CertificateValidatorOptions.TIME_RANGE
+        | CertificateValidatorOptions.URI
+        | CertificateValidatorOptions.TRUSTED
+        | CertificateValidatorOptions.REVOKED
+    )
+
+    def __init__(self, pki: Pki) -> None:
+        self.pki = pki
+        self._store = TrustStore([pki.trusted_dir], [pki.crl_dir])
+        self._validator = CertificateValidator(self.OPTIONS, self._store)
+        self._stamp: tuple[float, ...] | None = None
+
+    def _folders_stamp(self) -> tuple[float, ...]:
+        stamps: list[float] = []
+        for folder in (self.pki.trusted_dir, self.pki.crl_dir):
+            stamps.append(folder.stat().st_mtime)
+            stamps.extend(p.stat().st_mtime for p in sorted(folder.iterdir()))
+        return tuple(stamps)
+
+    async def __call__(self, cert: x509.Certificate, app: ua.ApplicationDescription) -> None:
+        stamp = self._folders_stamp()
+        if stamp != self._stamp:
+            await self._store.load()
+            self._stamp = stamp
+        await self._validator.validate(cert, app)
+
+
+# --------------------------------------------------------------------------------------------
+# The server's transport: discovery-only None channel, size checks, the request's user
+# --------------------------------------------------------------------------------------------
+
+
+class _SecureProcessor(UaProcessor):
+    """asyncua's message processor with tanklab's channel rules in front."""
+
+    audit: AuditLog | None = None
+
+    async def _process_message(self, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
+        policy = self._connection.security_policy
+        if policy.Mode != ua.MessageSecurityMode.SignAndEncrypt and typeid not in _DISCOVERY:
+            if typeid in (_CREATE_SESSION, _ACTIVATE_SESSION) and self.audit is not None:
+                self.audit.record(
+                    "activate",
+                    user="?",
+                    role="none",
+                    new="unencrypted channel",
+                    status="BadSecurityModeRejected",
+                )
+            raise ServiceError(ua.StatusCodes.BadSecurityModeRejected)
+        if typeid == _CREATE_SESSION:
+            params = struct_from_binary(ua.CreateSessionParameters, body.copy())
+            if params.ClientCertificate != policy.peer_certificate:
+                # The session's certificate must be the one that signed the channel.
+                raise ServiceError(ua.StatusCodes.BadCertificateInvalid)
+        token = CURRENT_USER.set(self.session.user if self.session is not None else None)
+        try:
+            return await super()._process_message(typeid, requesthdr, seqhdr, body)
+        except ServiceError as e:
+            if (
+                typeid == _ACTIVATE_SESSION
+                and self.audit is not None
+                and e.code != ua.StatusCodes.BadUserAccessDenied
+            ):
+                self.audit.record(
+                    "activate", user="?", role="none", new="refused", status=ua.StatusCode(e.code).name
+                )
+            raise
+        finally:
+            CURRENT_USER.reset(token)
+
+
+class _Protocol(OPCUAProtocol):
+    """One connection: tanklab's processor, and chunk headers checked before buffering."""
+
+    audit: AuditLog | None = None
+
+    def connection_made(self, transport: Any) -> None:
+        super().connection_made(transport)
+        if self.processor is not None:  # type: ignore[has-type]
+            processor = _SecureProcessor(self.iserver, self.transport, self.limits)
+            processor.audit = self.audit
+            processor.set_policies(self.policies)
+            self.processor = processor
+
+    def data_received(self, data: bytes) -> None:
+        head = self._buffer + data if len(self._buffer) < 8 else self._buffer
+        if len(head) >= 8:
+            size = int.from_bytes(head[4:8], "little")
+            if head[:3] not in _TCP_TYPES or size < 8 or size > self.limits.max_recv_buffer:
+                log.warning("closing connection from %s: bad chunk header", self.peer_name)
+                if self.transport is not None:
+                    self.transport.close()
+                return
+        super().data_received(data)
+
+
+class _BinaryServer(BinaryServer):
+    audit: AuditLog | None = None
+
+    def _make_protocol(self) -> OPCUAProtocol:
+        protocol = _Protocol(
+            iserver=self.iserver,
+            policies=self._policies,
+            clients=self.clients,
+            closing_tasks=self.closing_tasks,
+            limits=self.limits,
+        )
+        protocol.audit = self.audit
+        return protocol
+
+
+class TanklabServer(Server):
+    """asyncua's server listening through tanklab's secure transport (:class:`_Protocol`)."""
+
+    audit: AuditLog | None = None
+    audit_events: AuditEvents | None = None
+
+    async def start(self) -> None:
+        """Set up the endpoints and listen (asyncua's start, with tanklab's transport)."""
+        await self._setup_server_nodes()
+        await self.iserver.start()
+        try:
+            host, port = self._get_bind_socket_info()
+            self.bserver = _BinaryServer(self.iserver, host, port, self.limits)
+            self.bserver.audit = self.audit
+            self.bserver.set_policies(self._policies)
+            await self.bserver.start()
+        except Exception:
+            await self.iserver.stop()
+            raise
+
+    async def stop(self) -> None:
+        """Stop listening and raising audit events."""
+        if self.audit_events is not None:
+            self.audit_events.close()
+        await super().stop()
+
+
+# --------------------------------------------------------------------------------------------
+# Audit events
+# --------------------------------------------------------------------------------------------
+
+
+class AuditEvents:
+    """Raises each audit record as a ``TanklabAuditEventType`` event on the Server object.
+
+    Records are queued (at most ``QUEUE`` waiting; beyond that events are dropped and counted,
+    the file log still has every record) and raised one at a time by a background task, since
+    asyncua's event generator holds one event object.
+    """
+
+    FIELDS = ("Action", "User", "Role", "Node", "OldValue", "NewValue", "Status")
+    QUEUE = 1000
+
+    def __init__(self) -> None:
+        self._generator: Any = None
+        self._queue: asyncio.Queue[AuditRecord] = asyncio.Queue(self.QUEUE)
+        self._task: asyncio.Task[None] | None = None
+        self.dropped = 0
+
+    async def install(self, server: Server, audit: AuditLog) -> None:
+        """Create the event type and start raising ``audit``'s records."""
+        idx = await server.register_namespace(NAMESPACE_URI)
+        etype = await server.create_custom_event_type(
+            idx,
+            "TanklabAuditEventType",
+            ua.ObjectIds.BaseEventType,
+            [(f, ua.VariantType.String) for f in self.FIELDS],
+        )
+        self._generator = await server.get_event_generator(etype, ua.ObjectIds.Server)
+        audit.listeners.append(self._enqueue)
+        self._task = asyncio.get_running_loop().create_task(self._run())
+
+    def _enqueue(self, rec: AuditRecord) -> None:
+        try:
+            self._queue.put_nowait(rec)
+        except asyncio.QueueFull:
+            self.dropped += 1
+
+    async def _run(self) -> None:
+        while True:
+            rec = await self._queue.get()
+            ev = self._generator.event
+            ev.Action, ev.User, ev.Role, ev.Node = rec.action, rec.user, rec.role, rec.node
+            ev.OldValue, ev.NewValue, ev.Status = repr(rec.old), repr(rec.new), rec.status
+            ev.Severity = 100 if rec.status == "Good" else 500
+            try:
+                await self._generator.trigger(
+                    message=f"{rec.action} {rec.node} by {rec.user or '?'} ({rec.role}): {rec.status}"
+                )
+            except Exception:  # a subscriber's trouble must not stop the audit events
+                log.exception("audit event not raised")
+
+    def close(self) -> None:
+        """Stop raising events."""
+        if self._task is not None:
+            self._task.cancel()
+
+
+# --------------------------------------------------------------------------------------------
+# Wiring
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ServerSecurity:
+    """What a tier's server needs: the security home and where its audit log goes."""
+
+    home: SecurityHome
+    audit_dir: Path | None = None
+
+    @property
+    def audit_directory(self) -> Path:
+        return self.audit_dir or self.home.audit_dir
+
+
+async def secure_server(
+    server: TanklabServer, tier: str, security: ServerSecurity, limits: Limits = LIMITS
+) -> AuditLog:
+    """Configure ``server`` (initialised, not started) for ``tier``; returns its audit log.
+
+    A tier needs only its own key: its certificate and key, the certificates of the identities
+    it maps to roles, the trust list and the CRL. Raises :class:`~tanklab.errors.SecurityError`
+    naming what is missing.
+    """
+    pki = security.home.pki
+    needed = [pki.cert_path(tier), pki.key_path(tier), pki.trusted_dir, pki.crl_dir]
+    needed += [pki.cert_path(name) for name in _IDENTITY_ROLES[tier]]
+    missing = [str(p) for p in needed if not p.exists()]
+    if missing:
+        raise SecurityError(
+            f"{pki.root}: incomplete PKI (missing {', '.join(missing)}); "
+            f"run `tankctl pki init --home {security.home.root}` first"
+        )
+    audit = AuditLog(security.audit_directory, tier)
+    await server.load_certificate(str(pki.cert_path(tier)))
+    await server.load_private_key(str(pki.key_path(tier)))
+    server.set_security_policy(SECURITY_POLICIES)
+    server.set_identity_tokens([ua.UserNameIdentityToken, ua.X509IdentityToken])
+    server.iserver.user_manager = TankUserManager(security.home.users_file, tier_identities(pki, tier), audit)
+    server.set_certificate_validator(ReloadingValidator(pki))
+    server.limits.max_recv_buffer = limits.chunk_bytes
+    server.limits.max_chunk_count = limits.max_chunks
+    server.limits.max_message_size = limits.message_bytes
+    iserver = server.iserver
+    iserver.max_connections = limits.max_connections
+    iserver.max_pending_activation_seconds = limits.handshake_s
+    iserver.max_pending_messages_per_connection = limits.max_pending_messages
+    iserver.max_session_timeout_ms = limits.max_session_timeout_ms
+    server.audit = audit
+    server.audit_events = AuditEvents()
+    await server.audit_events.install(server, audit)
+    return audit
+
+
+@dataclass(frozen=True)
+class ClientIdentity:
+    """Who a tanklab client is: its certificate's name in the PKI, and for the CLI a login.
+
+    ``name`` is ``cli`` (with ``credentials``), or ``plc`` / ``supervisor`` (their tier
+    certificate is also their X509 identity).
+    """
+
+    home: SecurityHome
+    name: str = "cli"
+    credentials: Credentials | None = None
+    policy: str = "Basic256Sha256"
+
+
+async def secure_client(client: Client, identity: ClientIdentity) -> None:
+    """Set up ``client`` (not yet connected) to connect as ``identity``.
+
+    Fetches the server's endpoints over the discovery channel (the one thing it serves).
+    """
+    pki = identity.home.pki
+    cert, key = pki.cert_path(identity.name), pki.key_path(identity.name)
+    if not cert.exists() or not key.exists():
+        raise SecurityError(f"{pki.root}: no certificate for {identity.name!r}; run `tankctl pki init`")
+    if identity.policy not in CLIENT_POLICIES:
+        known = ", ".join(CLIENT_POLICIES)
+        raise SecurityError(f"unknown security policy {identity.policy!r}; one of {known}")
+    login = identity.name == "cli" or identity.credentials is not None
+    if login and identity.credentials is None:
+        where = identity.home.credentials_file
+        raise SecurityError(f"no credentials: set TANKLAB_USER and TANKLAB_PASSWORD, or write {where}")
+    client.application_uri = APPLICATION_URIS.get(identity.name, f"urn:tanklab:{identity.name}")
+    client.certificate_validator = ReloadingValidator(pki)
+    await client.set_security(
+        CLIENT_POLICIES[identity.policy], str(cert), str(key), mode=ua.MessageSecurityMode.SignAndEncrypt
+    )
+    if identity.credentials is not None:
+        client.set_user(identity.credentials.username)
+        client.set_password(identity.credentials.password)
+    else:
+        client.user_certificate = await uacrypto.load_certificate(str(cert))
+        client.user_private_key = await uacrypto.load_private_key(str(key))
+
+
+def client_setup(identity: ClientIdentity) -> ClientSetup:
+    """A :class:`tanklab.ua.Link` ``setup`` connecting as ``identity``."""
+
+    async def setup(client: Client) -> None:
+        await secure_client(client, identity)
+
+    return setup
+
+
+@dataclass
+class TierServer:
+    """A started tier server: its nodes, publisher, write guard and audit log."""
+
+    server: TanklabServer
+    nodes: dict[str, Any]
+    publisher: Publisher
+    guard: WriteGuard
+    audit: AuditLog
+
+
+async def start_tier_server(
+    tier: str,
+    *,
+    url: str,
+    name: str,
+    security: ServerSecurity,
+    tags: list[Tag],
+    on_write: WriteHandler,
+    methods: dict[str, MethodHandler] | None = None,
+) -> TierServer:
+    """Create, secure, populate and start the server of ``tier`` at ``url``."""
+    server = TanklabServer()
+    await server.init()
+    server.set_endpoint(url)
+    server.set_server_name(name)
+    await server.set_application_uri(APPLICATION_URIS[tier])
+    audit = await secure_server(server, tier, security)
+    _, nodes = await build_nodes(server, tags, methods, audit)
+    guard = install_write_guard(server, tags, nodes, on_write, audit)
+    publisher = Publisher(server, tags_by_path(tags), nodes)
+    await server.start()
+    return TierServer(server, nodes, publisher, guard, audit)
