@@ -26,7 +26,7 @@ CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
 pytestmark = pytest.mark.process
 
 
-def tankctl(*args: str, base: int) -> subprocess.CompletedProcess[str]:
+def tankctl(*args: str, base: int, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     """Run an operator command against the stack at ``base``."""
     return subprocess.run(
         [sys.executable, "-m", "tankctl", *args, "--base-port", str(base)],
@@ -35,13 +35,17 @@ def tankctl(*args: str, base: int) -> subprocess.CompletedProcess[str]:
         cwd=ROOT,
         timeout=60,
         check=False,
+        env=env,
     )
 
 
 class Up:
     """`tankctl up --no-board` in a subprocess (its own session, stopped with SIGTERM)."""
 
-    def __init__(self, config: Path, base: int, log_dir: Path, *extra: str) -> None:
+    def __init__(
+        self, config: Path, base: int, log_dir: Path, *extra: str, env: dict[str, str] | None = None
+    ) -> None:
+        self.env = env
         self.args = [
             "up",
             "--config",
@@ -56,6 +60,7 @@ class Up:
         self.log_dir = log_dir
         self.proc: asyncio.subprocess.Process | None = None
         self.lines: list[str] = []
+        self.other: list[str] = []
 
     async def start(self) -> Up:
         self.proc = await asyncio.create_subprocess_exec(
@@ -67,14 +72,17 @@ class Up:
             start_new_session=True,
             stdout=asyncio.subprocess.PIPE,
             stderr=asyncio.subprocess.STDOUT,
+            env=self.env,
         )
         assert self.proc.stdout is not None
         while len(self.lines) < 3:
             line = (await asyncio.wait_for(self.proc.stdout.readline(), 90)).decode()
             if not line:
-                raise AssertionError(f"tankctl up exited early: {''.join(self.lines)}")
+                raise AssertionError(f"tankctl up exited early: {''.join(self.other + self.lines)}")
             if "opc.tcp://" in line:
                 self.lines.append(line)
+            else:
+                self.other.append(line)
         return self
 
     def pid(self, tier: str, site: str) -> int:
@@ -141,6 +149,35 @@ async def test_cli_setpoint_leak_and_mode_through_the_lockstep_stack(lockstep_st
     await wait_until(lambda: near(0.40), 120, what="T1 tracks 0.40 m under the MPC")
     status = tankctl("status", "--json", base=base)
     assert status.returncode == 0 and "Traceback" not in status.stdout + status.stderr
+
+
+async def test_first_run_provisions_a_secured_stack_and_the_tour_works(tmp_path: Path) -> None:
+    """README: `make run` on a fresh machine, then the tour's commands in a second terminal.
+
+    A fresh security home: `tankctl up` creates the PKI and the engineer account, and the
+    operator commands log in from the credentials file it wrote."""
+    home = tmp_path / "home"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TANKLAB_")}
+    env["TANKLAB_HOME"] = str(home)
+    base = free_base_port()
+    up = await Up(CONFIG, base, tmp_path / "var", "--speed", "5", env=env).start()
+    try:
+        assert any("first run: created the PKI" in line for line in up.other), up.other
+        creds = home / "credentials"
+        assert creds.stat().st_mode & 0o777 == 0o600
+        assert "password=" not in "".join(up.other + up.lines)  # the password is never printed
+        r = tankctl("setpoint", "LIC1", "0.45", base=base, env=env)
+        assert r.returncode == 0 and r.stdout.startswith("PLC.LIC1.SP = 0.45 m (was 0.4 m)"), r.stderr
+        r = tankctl("leak", "T1", "0.3", base=base, env=env)
+        assert r.returncode == 0 and r.stdout.startswith("Plant.T1.Leak = 0.3 (was 0)"), r.stderr
+        r = tankctl("mode", "mpc", base=base, env=env)
+        assert r.returncode == 0 and r.stdout.startswith("Supervisor.Mode = MPC"), r.stderr
+        r = tankctl("setpoint", "LIC1", "0.7", base=base, env=env)
+        assert r.returncode == 1 and r.stderr.strip() == "tankctl: PLC.LIC1.SP = 0.7 refused: BadOutOfRange"
+        r = tankctl("gains", "LIC1", base=base, env=env)
+        assert r.returncode == 0, r.stderr
+    finally:
+        assert await up.stop() == 0
 
 
 async def _near(client: Client, path: str, sp: float, tol: float) -> bool:
