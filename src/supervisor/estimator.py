@@ -115,6 +115,10 @@ def _std_vector(value: ArrayLike, size: int, name: str) -> FloatArray:
 
 def _vector(value: ArrayLike, size: int, name: str) -> FloatArray:
     """A finite 1-D float vector of length ``size``."""
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (size,):
+        if not np.isfinite(value).all():  # the per-sample fast path: a copy and the value check
+            raise ValueError(f"{name} must be finite")
+        return value.copy()
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as e:
@@ -420,9 +424,11 @@ class AugmentedKalmanFilter:
         """
         y_ = _vector(y, self._ny, "y")
         u_ = _vector(u_prev, self._m, "u_prev")
-        if self._posterior is not None:
-            self.predict(u_)
-        return self.correct(y_)
+        if self._posterior is not None:  # predict and correct, on the vectors checked above
+            self._prior = self._Aa @ self._posterior + self._Ba @ u_
+        innov = y_ - self._Ca @ self._prior
+        self._posterior = self._prior + self._K @ innov
+        return self._make_estimate(self._posterior, innov)
 
     def _make_estimate(self, xi: FloatArray, innov: FloatArray) -> StateEstimate:
         x = xi[: self._n].copy()

@@ -84,7 +84,10 @@ Solver use
 ----------
 The OSQP problem is set up once in the constructor; ``step`` only updates q, l and u (and the
 tolerance settings, below) and warm-starts from the previous primal and dual solution shifted by
-one sample. ``update_model`` replaces A and B (and optionally the operating point) through OSQP's
+one sample. Before that, ``step`` solves the QP on the previous step's active set with a cached
+sparse LU of its KKT matrix (:class:`_ActiveSetQp`) and, if the KKT conditions hold to
+``KKT_TOL``, takes that exact optimum without running OSQP (the usual case near a steady state).
+``update_model`` replaces A and B (and optionally the operating point) through OSQP's
 matrix-value update on a fixed sparsity pattern (every structurally possible entry is stored).
 
 Tolerance ladder. With the papers' tuning (S = I in SI units is ~4e-8 of the tracking weight after
@@ -103,8 +106,8 @@ applied move and every returned plan is projected onto u_min <= u <= u_max and t
 (relative to the applied u(-1); a u(-1) outside the input box is first clipped to where the rate
 window meets it, the physical bounds win), so bounds hold exactly even at solver tolerance and on
 the held path; NaN is never returned. Solve time is OSQP's own update + solve + polish time summed
-over the rungs of the step [s]; OSQP's adaptive rho runs on an iteration count, so results are
-deterministic.
+over the rungs of the step [s] (0 when the previous active set was optimal); OSQP's adaptive rho
+runs on an iteration count, so results are deterministic.
 
 The module is pure: no clock, no I/O, no logging.
 """
@@ -113,6 +116,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
@@ -120,7 +124,9 @@ from typing import Literal
 import numpy as np
 import osqp
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from supervisor.estimator import AugmentedKalmanFilter
 from tanklab.enums import MpcStatus
@@ -171,6 +177,11 @@ def _matrix(value: ArrayLike, name: str, rows: int | None, cols: int | None) -> 
 
 def _vector(value: ArrayLike, size: int, name: str, *, allow_inf: bool = False) -> FloatArray:
     """Scalar (broadcast) or 1-D of length ``size``; NaN never allowed, +-inf only if ``allow_inf``."""
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (size,):
+        # the per-step fast path (a float vector already): a copy and the value check
+        if not (np.isfinite(value).all() if not allow_inf else not np.isnan(value).any()):
+            raise ValueError(f"{name} must be {'non-NaN' if allow_inf else 'finite'}")
+        return value.copy()
     arr = _as_float(value, name)
     if arr.ndim == 0:
         arr = np.full(size, float(arr))
@@ -219,6 +230,173 @@ def _shift_index(offset: int, blocks: int, size: int) -> NDArray[np.int64]:
         return np.zeros(0, dtype=np.int64)
     idx = np.concatenate([np.arange(size, blocks * size), np.arange((blocks - 1) * size, blocks * size)])
     return (idx + offset).astype(np.int64)
+
+
+# ----------------------------------------------------------------------------------------------
+# exact solutions on an active set
+# ----------------------------------------------------------------------------------------------
+#: KKT certificate tolerance, absolute, in the scaled QP's units (fractions of the ranges; the cost
+#: divided by c): primal feasibility, stationarity and the multipliers' signs. 1000 x tighter than
+#: the last tolerance rung's 1e-6.
+KKT_TOL = 1e-9
+
+#: Factorisations kept, keyed by the active set (a steady state or a ramp revisits a few sets).
+_KKT_CACHE = 8
+
+
+def _absmax(a: FloatArray) -> float:
+    return float(np.abs(a).max()) if a.size else 0.0
+
+
+@dataclass
+class _KktSolution:
+    """A solution of the scaled QP on an active set, checked against the KKT conditions."""
+
+    x: FloatArray
+    y: FloatArray
+    certified: bool
+    """Primal feasible, stationary and with multipliers of the right signs: the optimum."""
+
+
+class _ActiveSetQp:
+    r"""Exact solutions of ``min 1/2 v'Pv + q'v s.t. l <= Av <= u`` on a given active set.
+
+    With W the active rows (lower bound ``l`` or upper bound ``u``; equality rows always), the
+    optimum of the equality-constrained problem solves the KKT system::
+
+        [ P    A_W' ] [ v   ]   [ -q  ]
+        [ A_W  0    ] [ y_W ] = [ b_W ],      b_W = l or u per row, y = 0 off W
+
+    (OSQP's sign convention: y < 0 on an active lower bound, y > 0 on an active upper bound). The
+    solution is the QP's optimum if and only if it also satisfies the inactive rows and the
+    multipliers have the right signs (sufficient for a convex QP): :meth:`solve` checks both to
+    ``KKT_TOL`` together with stationarity. Factorisations are sparse LU (SuperLU) of the KKT
+    matrix in a reverse Cuthill-McKee order computed once (the QP is a chain of stages, so the
+    order is a band), cached per active set: only ``q`` and ``b`` change between steps, so a step
+    that keeps the active set of the previous one costs one triangular solve.
+    """
+
+    def __init__(self, P_upper: sp.csc_matrix, A: sp.csc_matrix) -> None:
+        self._nv = A.shape[1]
+        self._nc = A.shape[0]
+        self._cache: OrderedDict[bytes, tuple[object, NDArray[np.int64], NDArray[np.int64]] | None] = (
+            OrderedDict()
+        )
+        self.set_values(P_upper, A)
+        P_full = self._P
+        pattern = sp.bmat(
+            [[abs(P_full) + sp.eye(self._nv), abs(A).T], [abs(A), sp.eye(self._nc)]], format="csr"
+        )
+        self._perm = reverse_cuthill_mckee(pattern, symmetric_mode=True).astype(np.int64)
+        self._rank = np.empty(self._perm.size, dtype=np.int64)
+        self._rank[self._perm] = np.arange(self._perm.size)
+        self._keep = np.ones(self._perm.size, dtype=bool)
+
+    def set_values(self, P_upper: sp.csc_matrix, A: sp.csc_matrix) -> None:
+        """New matrix values (same shapes); drops every cached factorisation."""
+        P = (P_upper + sp.triu(P_upper, k=1).T).tocoo()
+        self._P = P.tocsr()
+        self._Pi, self._Pj, self._Pv = P.row.astype(np.int64), P.col.astype(np.int64), P.data
+        Ac = A.tocoo()
+        self._Ai, self._Aj, self._Av = Ac.row.astype(np.int64), Ac.col.astype(np.int64), Ac.data
+        self._A = A.tocsr()
+        # [[P, A'], [A, 0]] [x; y] = [P x + A' y; A x]: every residual in one product
+        self._K = sp.bmat([[self._P, A.T], [A, None]], format="csr")
+        self._cache.clear()
+
+    def _factor(self, act: BoolArray) -> tuple[object, NDArray[np.int64], NDArray[np.int64]] | None:
+        """LU of the reduced KKT matrix (None if singular), the active rows, the positions.
+
+        Unknowns are [v; y_W]. ``pos`` gives each one's place in the band order restricted to
+        the active rows: ``pos[:nv]`` for v, ``pos[nv:]`` for the active rows' multipliers.
+        """
+        nv = self._nv
+        idx = np.flatnonzero(act)
+        self._keep[nv:] = act
+        pos_of = (np.cumsum(self._keep[self._perm]) - 1)[self._rank]  # valid where kept
+        pos = np.concatenate([pos_of[:nv], pos_of[nv + idx]])
+        on = act[self._Ai]
+        ri = pos_of[nv + self._Ai[on]]
+        cj = pos_of[self._Aj[on]]
+        av = self._Av[on]
+        size = nv + idx.size
+        K = sp.csc_matrix(
+            (
+                np.concatenate([self._Pv, av, av]),
+                (np.concatenate([pos_of[self._Pi], ri, cj]), np.concatenate([pos_of[self._Pj], cj, ri])),
+            ),
+            shape=(size, size),
+        )
+        try:
+            lu = spla.splu(K, permc_spec="NATURAL")  # already in band order
+        except RuntimeError:  # exactly singular: dependent active rows
+            return None
+        return lu, idx, pos
+
+    def solve(
+        self, q: FloatArray, lo: FloatArray, up: FloatArray, lower: BoolArray, upper: BoolArray
+    ) -> _KktSolution | None:
+        """The KKT solution on W = lower | upper, checked; None if the KKT matrix is singular."""
+        act = lower | upper
+        key = act.tobytes()
+        if key in self._cache:
+            entry = self._cache[key]
+            self._cache.move_to_end(key)
+        else:
+            entry = self._factor(act)
+            self._cache[key] = entry
+            if len(self._cache) > _KKT_CACHE:
+                self._cache.popitem(last=False)
+        if entry is None:
+            return None
+        lu, idx, pos = entry
+        nv = self._nv
+        b = np.where(lower[idx], lo[idx], up[idx])
+        rhs = np.empty(pos.size)
+        rhs[pos[:nv]] = -q
+        rhs[pos[nv:]] = b
+        sol = lu.solve(rhs)  # type: ignore[attr-defined]
+        xy = np.zeros(nv + self._nc)
+        xy[:nv] = sol[pos[:nv]]
+        xy[nv + idx] = sol[pos[nv:]]
+        Kxy = self._K @ xy
+        r_dual = Kxy[:nv] + q
+        r_act = b - Kxy[nv + idx]
+        if _absmax(r_dual) > KKT_TOL or _absmax(r_act) > KKT_TOL:
+            # one step of iterative refinement with the same factors (ill-conditioned flat QPs)
+            rhs[pos[:nv]] = -r_dual
+            rhs[pos[nv:]] = r_act
+            d = lu.solve(rhs)  # type: ignore[attr-defined]
+            xy[:nv] += d[pos[:nv]]
+            xy[nv + idx] += d[pos[nv:]]
+            Kxy = self._K @ xy
+            r_dual = Kxy[:nv] + q
+            r_act = b - Kxy[nv + idx]
+            if _absmax(r_dual) > KKT_TOL or _absmax(r_act) > KKT_TOL:
+                return None  # not solved accurately: no certificate either way
+        # the optimum iff the inactive rows hold and the multipliers have the right signs
+        x, y, z = xy[:nv], xy[nv:], Kxy[nv:]
+        free = ~act
+        eq = lo == up
+        certified = not (
+            (free & ((z < lo - KKT_TOL) | (z > up + KKT_TOL))).any()
+            or (((lower & (y > KKT_TOL)) | (upper & (y < -KKT_TOL))) & ~eq).any()
+        )
+        return _KktSolution(x, y, certified)
+
+    def guess(
+        self, lo: FloatArray, up: FloatArray, x: FloatArray, y: FloatArray
+    ) -> tuple[BoolArray, BoolArray]:
+        """The active set of an ADMM iterate by OSQP's polish rule (z = A x): lower where
+        z - l < -y, upper where u - z < y."""
+        z = self._A @ x
+        lower = z - lo < -y
+        upper = ~lower & (up - z < y)
+        return lower | ((lo == up) & ~upper), upper
+
+    def cached(self, lower: BoolArray, upper: BoolArray) -> bool:
+        """Whether the factorisation for this active set is at hand."""
+        return (lower | upper).tobytes() in self._cache
 
 
 # ----------------------------------------------------------------------------------------------
@@ -423,9 +601,10 @@ class MpcResult:
     osqp_status : str
         OSQP's status string for this step.
     iterations : int
-        ADMM iterations of this step.
+        ADMM iterations of this step (0: OSQP did not run).
     solve_time_s : float
-        OSQP-reported update + solve + polish time of this step [s].
+        OSQP-reported update + solve + polish time of this step [s]; 0 when OSQP did not run
+        (the previous step's active set was optimal).
     planned_u : ndarray, shape (Np, m)
         Planned inputs u(0..Np-1) [m^3/s]; ``planned_u[0] == u``.
     predicted_z : ndarray, shape (Np, nz)
@@ -464,7 +643,7 @@ class MpcResult:
 
 @dataclass
 class _OsqpOutcome:
-    """What the tolerance ladder produced in one step (scaled QP variables)."""
+    """What the QP solve produced in one step (scaled QP variables)."""
 
     status: str = "not run"
     iterations: int = 0
@@ -474,6 +653,9 @@ class _OsqpOutcome:
     accurate: bool = False
     last_x: FloatArray | None = None
     last_y: FloatArray | None = None
+    kkt_solves: int = 0
+    active: tuple[BoolArray, BoolArray] | None = None
+    """The active set (lower, upper) of an exact solution (certified or OSQP-polished)."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -573,6 +755,7 @@ class MpcController:
             if np.any(rho_q < 0.0):
                 raise ValueError("slack_quadratic must be >= 0")
             self._rho_q_t = rho_q * self._sz**2 / self._c
+        self._slack_si = self.slack_weights  # fixed from here on
 
         # -- estimator ---------------------------------------------------------------------------
         if config.estimator_outputs is None:
@@ -614,6 +797,7 @@ class MpcController:
         self._set_model_matrices(model.A, model.B)
         self._set_vector_bases()
         P, Aqp = self._qp_matrices()
+        self._kkt = _ActiveSetQp(P, Aqp)
         q, lo, up = self._qp_vectors(np.zeros(n), np.zeros(self._n_eta), np.zeros((N, nz)), model.u_op)
         # the tolerance ladder: polish at each rung; without polishing only the last rung is used
         self._tolerances = tuple(float(e) for e in config.tolerances)
@@ -700,6 +884,7 @@ class MpcController:
         self._At = Dx_inv @ A @ np.diag(self._sx)
         self._Bt = Dx_inv @ B @ np.diag(self._su)
         self._Czt = np.diag(1.0 / self._sz) @ self._model.Cz @ np.diag(self._sx)
+        self._QtCzt = self._Qt.T @ self._Czt  # the sparse form's q on the states, per stage
         # condensed prediction (also used for exact output prediction of any plan)
         Phi = np.zeros((N * n, n))
         Psi = np.zeros((N * n, n))
@@ -877,15 +1062,15 @@ class MpcController:
                 lo[self._row_zlo : self._row_zlo + ns] -= f
                 up[self._row_zhi : self._row_zhi + ns] -= f
         else:
-            q[self._x_off : self._x_off + N * n] = -(rt.reshape(N, nz) @ (self._Qt.T @ self._Czt)).reshape(-1)
-            dyn = np.tile(wt, N)
-            dyn[:n] += self._At @ x0t
-            lo[self._row_dyn : self._row_dyn + N * n] = dyn
-            up[self._row_dyn : self._row_dyn + N * n] = dyn
+            q[self._x_off : self._x_off + N * n] = -(rt.reshape(N, nz) @ self._QtCzt).reshape(-1)
+            dyn = lo[self._row_dyn : self._row_dyn + N * n].reshape(N, n)  # view
+            dyn[:] = wt
+            dyn[0] += self._At @ x0t
+            up[self._row_dyn : self._row_dyn + N * n] = dyn.reshape(-1)
         if self._rate_rows and self._config.first_move_rate_limited:
             # keep [u(-1) + du_min, u(-1) + du_max] and [u_min, u_max] intersecting even if the
             # applied u(-1) lies outside the input bounds (the physical bounds win)
-            up_eff = np.clip(up_t, self._umin_t - self._dmax_t, self._umax_t - self._dmin_t)
+            up_eff = np.minimum(np.maximum(up_t, self._umin_t - self._dmax_t), self._umax_t - self._dmin_t)
             lo[self._row_rate : self._row_rate + m] += up_eff
             up[self._row_rate : self._row_rate + m] += up_eff
         return q, lo, up
@@ -899,6 +1084,8 @@ class MpcController:
     # ------------------------------------------------------------------------------------------
     def _reset_runtime_state(self) -> None:
         self._plan: FloatArray | None = None
+        self._active: tuple[BoolArray, BoolArray] | None = None
+        self._active_repeated = False
         self._ws_x: FloatArray | None = None
         self._ws_y: FloatArray | None = None
         self._failures = 0
@@ -973,28 +1160,49 @@ class MpcController:
 
     def _reference(self, r: ArrayLike) -> FloatArray:
         arr = _as_float(r, "r")
-        if arr.shape == (self._nz,):
-            arr = np.tile(arr, (self._N, 1))
-        elif arr.shape != (self._N, self._nz):
+        if arr.shape not in ((self._nz,), (self._N, self._nz)):
             raise ValueError(f"r must have shape ({self._nz},) or ({self._N}, {self._nz}), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
+        if not np.isfinite(arr).all():
             raise ValueError("r must be finite")
-        return arr
+        return np.broadcast_to(arr, (self._N, self._nz))  # read-only, no copy
 
-    def _run_osqp(self) -> _OsqpOutcome:
-        """Solve with the tolerance ladder and return the accepted solution (scaled QP variables).
+    def _solve_qp(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> _OsqpOutcome:
+        """Solve the scaled QP; return the accepted solution (scaled QP variables).
 
-        Each rung solves to eps_abs = eps_rel = its tolerance with polishing, continuing the ADMM
-        iterations of the previous rung (OSQP keeps its iterate between ``solve`` calls). A
-        successful polish gives the exact optimum of the identified active set and ends the
-        ladder; otherwise the next, tighter rung runs. The last rung's solution is accepted
-        polished or not. The iteration budget ``max_iter`` is shared by all rungs. If a rung stops
-        without converging, the solution of the previous rung (if any) is used, flagged inexact,
-        unless OSQP reports "solved inaccurate" at a rung whose 10 x tolerance is tighter still.
+        1. With ``polish``, the active set of the previous step's exact solution is tried first
+           (:class:`_ActiveSetQp`; its factorisation is cached): if the solution on it passes
+           the KKT check, it is the optimum and OSQP does not run. Near a steady state, and
+           whenever the active set did not change, this is the whole step. A set is tried once
+           its factorisation is cached or it was the same two steps in a row (a transient changes
+           the set every step, and a new factorisation costs about two OSQP solves).
+        2. Otherwise the tolerance ladder: each rung solves to eps_abs = eps_rel = its tolerance
+           with polishing, continuing the ADMM iterations of the previous rung (OSQP keeps its
+           iterate between ``solve`` calls), warm-started from the previous solution shifted by
+           one sample. A successful polish gives the exact optimum of the identified active set
+           and ends the ladder; otherwise the next, tighter rung runs. The last rung's solution is
+           accepted polished or not.
+
+        The iteration budget ``max_iter`` is shared by all rungs. If a rung stops without
+        converging, the solution of the previous rung (if any) is used, flagged inexact, unless
+        OSQP reports "solved inaccurate" at a rung whose 10 x tolerance is tighter still.
         """
+        out = _OsqpOutcome()
+        polish = self._config.polish
+        cand = self._active
+        if polish and cand is not None and (self._active_repeated or self._kkt.cached(*cand)):
+            sol = self._kkt.solve(q, lo, up, *cand)
+            out.kkt_solves += 1
+            if sol is not None and sol.certified:
+                out.status = "skipped: the previous active set is optimal"
+                out.x, out.y, out.accurate, out.active = sol.x, sol.y, True, cand
+                return out
+        self._solver.update(q=q, l=lo, u=up)
+        if self._ws_x is None or self._ws_y is None:
+            self._solver.warm_start(x=np.zeros(self._nv), y=np.zeros(self._nc))
+        else:
+            self._solver.warm_start(x=self._ws_x, y=self._ws_y)
         ladder = self._tolerances
         budget = int(self._config.max_iter)
-        out = _OsqpOutcome()
         held_eps = math.inf  # tolerance met by the solution held in ``out``
         for rung, eps in enumerate(ladder):
             left = budget - out.iterations
@@ -1015,8 +1223,11 @@ class MpcController:
                 out.last_x, out.last_y = x, y
             status_val = int(info.status_val)
             if status_val == _OSQP_SOLVED and finite:
-                done = int(info.status_polish) == 1 or rung == len(ladder) - 1
+                polished = int(info.status_polish) == 1
+                done = polished or rung == len(ladder) - 1
                 out.x, out.y, out.accurate = x, y, done
+                if polished:
+                    out.active = self._kkt.guess(lo, up, x, y)
                 held_eps = eps
                 if done:
                     break
@@ -1029,12 +1240,16 @@ class MpcController:
 
     def _solve(self, dx0: FloatArray, eta: FloatArray, r_abs: FloatArray, u_prev: FloatArray) -> MpcResult:
         q, lo, up = self._qp_vectors(dx0, eta, r_abs, u_prev)
-        self._solver.update(q=q, l=lo, u=up)
-        if self._ws_x is None or self._ws_y is None:
-            self._solver.warm_start(x=np.zeros(self._nv), y=np.zeros(self._nc))
-        else:
-            self._solver.warm_start(x=self._ws_x, y=self._ws_y)
-        out = self._run_osqp()
+        out = self._solve_qp(q, lo, up)
+        prev, self._active = self._active, out.active
+        self._active_repeated = prev is not None and (
+            prev is out.active
+            or (
+                out.active is not None
+                and np.array_equal(prev[0], out.active[0])
+                and np.array_equal(prev[1], out.active[1])
+            )
+        )
         sol_x, sol_y = out.x, out.y
         model = self._model
         N, m = self._N, self._m
@@ -1093,22 +1308,23 @@ class MpcController:
         the input box, as in the QP) when ``first_move_rate_limited``; corrections are at solver
         tolerance except on the held path.
         """
-        out = np.clip(plan, self._u_min, self._u_max)
+        umin, umax = self._u_min, self._u_max
+        out = np.minimum(np.maximum(plan, umin), umax)  # np.clip's result, less call overhead
         lim = self._has_rate_rows
         if not lim:
             return out
         dmin, dmax = self._du_min, self._du_max
         if self._config.first_move_rate_limited:
-            base = np.clip(u_prev, self._u_min - dmax, self._u_max - dmin)
-            lo0 = np.maximum(self._u_min, base + dmin)
-            out[0] = np.clip(out[0], lo0, np.minimum(self._u_max, base + dmax))
-        d = np.diff(out, axis=0)
-        if np.all(d >= dmin) and np.all(d <= dmax):
+            base = np.minimum(np.maximum(u_prev, umin - dmax), umax - dmin)
+            lo0 = np.maximum(umin, base + dmin)
+            out[0] = np.minimum(np.maximum(out[0], lo0), np.minimum(umax, base + dmax))
+        d = out[1:] - out[:-1]
+        if (d >= dmin).all() and (d <= dmax).all():
             return out
         for k in range(1, self._N):
-            lo = np.maximum(self._u_min, out[k - 1] + dmin)
-            hi = np.minimum(self._u_max, out[k - 1] + dmax)
-            out[k] = np.clip(out[k], lo, hi)
+            lo = np.maximum(umin, out[k - 1] + dmin)
+            hi = np.minimum(umax, out[k - 1] + dmax)
+            out[k] = np.minimum(np.maximum(out[k], lo), hi)
         return out
 
     def _predict_z(self, dx0: FloatArray, eta: FloatArray, plan: FloatArray) -> FloatArray:
@@ -1122,9 +1338,11 @@ class MpcController:
     ) -> tuple[float, float]:
         """SI cost of the plan (constants included) and its largest output-bound violation [m]."""
         e = z - r_abs
-        track = 0.5 * float(np.sum((e @ self._Qz) * e))
-        du = np.diff(np.vstack([u_prev, plan]), axis=0)
-        move = 0.5 * float(np.sum((du @ self._S) * du))
+        track = 0.5 * float(((e @ self._Qz) * e).sum())
+        du = np.empty_like(plan)
+        du[0] = plan[0] - u_prev
+        np.subtract(plan[1:], plan[:-1], out=du[1:])
+        move = 0.5 * float(((du @ self._S) * du).sum())
         cost = track + move
         if self._use_R:
             model = self._model
@@ -1134,9 +1352,9 @@ class MpcController:
             cost += 0.5 * float(np.sum((eu @ self._R) * eu))
         viol = np.maximum(0.0, np.maximum(z - self._z_max, self._z_min - z))
         if self._has_z_rows:
-            rho_q, rho_l = self.slack_weights
-            cost += float(np.sum(0.5 * rho_q * viol**2 + rho_l * viol))
-        return cost, float(np.max(viol)) if viol.size else 0.0
+            rho_q, rho_l = self._slack_si
+            cost += float((0.5 * rho_q * viol**2 + rho_l * viol).sum())
+        return cost, float(viol.max()) if viol.size else 0.0
 
     # ------------------------------------------------------------------------------------------
     # model update
@@ -1186,6 +1404,7 @@ class MpcController:
         self._set_vector_bases()
         P, _, Aqp, _ = self._qp_dense()
         self._solver.update(Px=_csc_data(P, self._Pmask), Ax=_csc_data(Aqp, self._Amask))
+        self._kkt.set_values(_csc(P, self._Pmask), _csc(Aqp, self._Amask))
         if self._ws_x is not None:
             # keep the warm start in absolute terms when u_op moves
             us = slice(self._u_off, self._u_off + self._N * self._m)
