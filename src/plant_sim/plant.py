@@ -45,7 +45,8 @@ class PlantSimulator:
     ----------
     config : the plant section of a site config.
     integrator : ``"rk4"`` (fixed sub-steps, fast) or ``"adaptive"`` (solve_ivp).
-    max_substep_s : RK4 sub-step bound [s].
+    max_substep_s : fixed RK4 sub-steps of at most this length [s]; None (default): the plant's
+        automatic sub-step (:func:`plant_sim.integrate.step_rk4`).
     """
 
     def __init__(
@@ -53,7 +54,7 @@ class PlantSimulator:
         config: PlantConfig,
         *,
         integrator: Literal["rk4", "adaptive"] = "rk4",
-        max_substep_s: float = 0.05,
+        max_substep_s: float | None = None,
     ) -> None:
         self.config = config
         self.net = TankNetwork.from_config(config)
@@ -85,7 +86,7 @@ class PlantSimulator:
     @property
     def pump_flows(self) -> FloatArray:
         """Actual pump flows [m^3/s]."""
-        return self.flows().pumps
+        return self.net.actual_pump_flows(self.x, self.inputs)
 
     @property
     def commands(self) -> FloatArray:

@@ -20,7 +20,6 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from plant_sim.integrate import DEFAULT_MAX_SUBSTEP_S
 from plant_sim.plant import PlantSimulator
 from plc_emulator.program import GainStatus, PlcProgram, ScanInputs
 from supervisor.cycle import PlcSnapshot, SupervisorCore
@@ -60,8 +59,9 @@ class CoSimulation:
     site : the site config (plant and plc sections).
     scan_period_s : overrides the PLC's scan period (e.g. 0.01 s to reproduce a continuous-time
         paper); default: the config's.
-    integrator, max_substep_s : the plant's integrator (``"rk4"`` with sub-steps of at most
-        ``max_substep_s`` [s], or ``"adaptive"`` solve_ivp), see :class:`PlantSimulator`.
+    integrator, max_substep_s : the plant's integrator (``"rk4"`` with the plant's automatic
+        sub-steps, or fixed ones of at most ``max_substep_s`` [s]; or ``"adaptive"`` solve_ivp),
+        see :class:`PlantSimulator`.
     supervisor_mode : run the supervisor (:class:`supervisor.cycle.SupervisorCore`) in this mode;
         None: the PLC alone. Entering MPC at start goes through the same bumpless switch as at run
         time (the loops are put in REMOTE at the first cycle).
@@ -79,7 +79,7 @@ class CoSimulation:
         *,
         scan_period_s: float | None = None,
         integrator: Literal["rk4", "adaptive"] = "rk4",
-        max_substep_s: float = DEFAULT_MAX_SUBSTEP_S,
+        max_substep_s: float | None = None,
         supervisor_mode: Literal["OFF", "ADVISORY", "ADAPTIVE_PID", "MPC"] | None = None,
     ) -> None:
         if site.plc is None:
@@ -115,7 +115,10 @@ class CoSimulation:
         """One scan: read the transmitters, scan, command the pumps, advance the plant by Ts."""
         readings = self.plant.readings
         good = np.full(len(readings), self.io_healthy)
-        out = self.plc.scan(ScanInputs(self.plant.t_s, readings.copy(), good, self.io_healthy))
+        out = self.plc.scan(
+            ScanInputs(self.plant.t_s, readings.copy(), good, self.io_healthy),
+            publish=self.supervisor is not None,  # only the supervisor reads the PLC's nodes
+        )
         if self.io_healthy:
             self.plant.set_commands(
                 np.clip(out.commands, self.plant.net.pump_cmd_min, self.plant.net.pump_cmd_max)
@@ -149,16 +152,18 @@ class CoSimulation:
 
     def _record(self, commands: FloatArray) -> None:
         tr = self.trace
-        tr.t_s.append(self.plant.t_s)
-        tr.levels_m.append(self.plant.levels)
-        tr.readings_m.append(self.plant.readings.copy())
+        plant = self.plant
+        loops = self.plc.loops
+        tr.t_s.append(plant.t_s)
+        tr.levels_m.append(plant.levels)
+        tr.readings_m.append(plant.readings.copy())
         tr.commands.append(commands.copy())
-        tr.setpoints_m.append(np.array([lp.sp_m for lp in self.plc.loops]))
-        tr.flows_m3_s.append(self.plant.pump_flows)
+        tr.setpoints_m.append(np.array([lp.sp_m for lp in loops]))
+        tr.flows_m3_s.append(plant.pump_flows)
         tr.gains.append(
-            np.array([[g.kp, g.ki, g.kd] if (g := lp.applied) else [0.0, 0.0, 0.0] for lp in self.plc.loops])
+            np.array([[g.kp, g.ki, g.kd] if (g := lp.applied) else [0.0, 0.0, 0.0] for lp in loops])
         )
-        tr.modes.append(np.array([int(lp.mode) for lp in self.plc.loops], dtype=float))
+        tr.modes.append(np.array([int(lp.mode) for lp in loops], dtype=float))
 
     def run(self, duration_s: float, before_scan: Callable[[CoSimulation], None] | None = None) -> Trace:
         """Run for ``duration_s`` of model time (whole scans); return the trace."""
