@@ -50,6 +50,8 @@ class CosimResult:
     profiled_total_s: float
     other_cores: float
     """Cores other work on the machine kept busy during the timed runs (:class:`CpuMeter`)."""
+    parts: dict[str, float]
+    """Cumulative share of the profiled time of the scan's parts (:data:`PARTS`)."""
 
     @property
     def rtf(self) -> list[float]:
@@ -88,15 +90,42 @@ def hotspots(prof: cProfile.Profile, top: int = 8) -> tuple[list[HotSpot], float
     return rows[:top], total
 
 
-def profile_top(run: Callable[[], object], top: int = 8) -> tuple[list[HotSpot], float]:
-    """Run ``run`` under cProfile; the ``top`` functions by own time, and the total [s]."""
+PARTS = {
+    "plant integration (`plant_sim.integrate.step_rk4`)": ("integrate.py", "step_rk4"),
+    "PID blocks (`plc_emulator.pid.Pid.step`)": ("pid.py", "step"),
+    "PLC scan (`PlcProgram.scan`, PID blocks included)": ("program.py", "scan"),
+    "transmitters (`TransmitterBank.read`)": ("sensors.py", "read"),
+    "trace (`CoSimulation._record`)": ("cosim.py", "_record"),
+    "supervisor (`SupervisorCore.cycle`)": ("cycle.py", "cycle"),
+}
+"""Parts of a scan whose cumulative profiled share the report gives: (file name, function)."""
+
+
+def part_shares(prof: cProfile.Profile) -> dict[str, float]:
+    """Cumulative share of the profiled total of each of :data:`PARTS` (0 if never called)."""
+    stats = pstats.Stats(prof)
+    total = float(stats.total_tt)  # type: ignore[attr-defined]
+    out = {}
+    for label, (file, func) in PARTS.items():
+        cum = sum(
+            float(ct)
+            for (filename, _line, name), (_cc, _nc, _tt, ct, _callers) in stats.stats.items()  # type: ignore[attr-defined]
+            if name == func and Path(filename).name == file
+        )
+        out[label] = cum / total if total > 0 else 0.0
+    return out
+
+
+def profile_top(run: Callable[[], object], top: int = 8) -> tuple[list[HotSpot], float, dict[str, float]]:
+    """Run ``run`` under cProfile; the ``top`` functions by own time, the total [s], the parts."""
     prof = cProfile.Profile()
     prof.enable()
     try:
         run()
     finally:
         prof.disable()
-    return hotspots(prof, top)
+    spots, total = hotspots(prof, top)
+    return spots, total, part_shares(prof)
 
 
 def run_one(mode: Mode, duration_s: float) -> tuple[float, int]:
@@ -132,8 +161,8 @@ def run(
         def profiled(sim: CoSimulation = sim) -> object:
             return sim.run(duration_s, scenario_hook)
 
-        spots, total = profile_top(profiled)
-        res = CosimResult(label, mode, duration_s, scans, walls, spots, total, meter.other_cores)
+        spots, total, parts = profile_top(profiled)
+        res = CosimResult(label, mode, duration_s, scans, walls, spots, total, meter.other_cores, parts)
         log(f"  {label}: wall {sorted(walls)[len(walls) // 2]:.3f} s for {duration_s:g} s of model time")
         out.append(res)
     return out

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from benchmarks import cosim, mpc, report, stack
+from benchmarks import accuracy, cosim, mpc, report, stack
 from benchmarks.common import ROOT, machine, versions
 
 SECTIONS = ("mpc", "cosim", "stack")
@@ -143,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
         profile_np = report.GOAL_NP if report.GOAL_NP in plan.horizons else plan.horizons[0]
         rep.mpc_profile = mpc.profile_steps(profile_np, plan.mpc_duration_s)
         rep.mpc_profile_np = profile_np
+        _log("MPC accuracy guard (closed-loop IAE against CLARABEL):")
+        rep.accuracy = accuracy.run(_log)
 
     def run_cosim() -> None:
         _log("co-simulation:")
