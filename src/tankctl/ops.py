@@ -429,7 +429,8 @@ class TierClient:
             await _quiet_disconnect(client)
             creds = self.identity.credentials
             who = f"login as {creds.username!r}" if creds is not None else "login"
-            raise UnreachableError(self.tier, self.url, f"{who} refused: {ua.StatusCode(e.code).name}") from None
+            reason = f"{who} refused: {ua.StatusCode(e.code).name}"
+            raise UnreachableError(self.tier, self.url, reason) from None
         except Exception as e:
             await _quiet_disconnect(client)
             raise UnreachableError(self.tier, self.url, _describe(e, self.timeout_s)) from None
