@@ -596,6 +596,7 @@ class SiteConfig(Model):
             for il in self.plc.interlocks:
                 if il.tank not in tanks:
                     raise ValueError(f"plc.interlocks: unknown tank {il.tank}")
+                self._check_interlock(il)
         if self.supervisor is not None:
             if self.plc is None:
                 raise ValueError("supervisor needs a plc section")
@@ -610,6 +611,25 @@ class SiteConfig(Model):
             if mpc.r is not None and len(mpc.r) != len(self.plant.pumps):
                 raise ValueError("supervisor.mpc.r needs one weight per pump")
         return self
+
+    def _check_interlock(self, il: InterlockSpec) -> None:
+        """A high-high trip must be able to do its job, one scan late at worst.
+
+        The PLC sees a level once per scan, so between the last reading below HH and the trip
+        the tank's pumps may run a whole scan at full flow: ``HH + Q_max Ts / A`` must stay below
+        the tank's top. (A setpoint above HH is allowed: reaching it trips its own loop, which is
+        what the interlock is for; the shipped Energies and Kortela sites let it go to 0.6 m.)
+        """
+        assert self.plc is not None
+        tank = self.plant.tank(il.tank)
+        inflow = sum(p.max_flow_m3_s for p in self.plant.pumps if p.feeds == il.tank)
+        rise_m = inflow * self.plc.scan_period_s / tank.area_m2
+        if il.high_high_m + rise_m >= tank.height_max_m:
+            raise ValueError(
+                f"plc.interlocks {il.tank}: high_high_m {il.high_high_m:g} m plus one scan at full pump flow "
+                f"({rise_m:.3g} m) reaches height_max_m {tank.height_max_m:g} m: the trip could not stop "
+                "an overflow (lower the trip, the pump's max_flow_m3_s or the scan period)"
+            )
 
     # Convenience views used by tags and runtimes --------------------------------------------
 

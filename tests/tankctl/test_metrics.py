@@ -206,7 +206,7 @@ def test_single_tank_drain_matches_the_closed_form() -> None:
 
 
 def test_a_target_the_pump_cannot_hold_never_settles() -> None:
-    # Full flow 0.5 m^3/s settles at (q / c)^2 = 0.5^2 / 0.125^2 = 16 m of level: within the
+    # Full flow 0.2 m^3/s settles at (q / c)^2 = 0.2^2 / 0.125^2 = 2.56 m of level: within the
     # horizon of 0.01 s a 0.2 m step is not reached.
     (r,) = min_time_step(single_tank(), [0.0], [LevelStep("P1", "T1", 0.2, 0.002)], horizon_s=0.01)
     assert r.settling_time_s is None

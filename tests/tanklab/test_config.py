@@ -52,6 +52,12 @@ def _energies() -> dict:
         (lambda d: d["plant"]["pumps"][0].update(command_max="lots"), "plant.pumps[0].command_max", "number"),
         (lambda d: d["plant"]["tanks"][0].update(leak_mu=float("nan")), "plant.tanks[0].leak_mu", "finite"),
         (lambda d: d["supervisor"]["mpc"].update(qz=[1.0]), "(top level)", "one weight per controlled"),
+        # HH 0.615 m + one 1 s scan at 1.2e-4 m^3/s into 0.0154 m^2 (7.8 mm) passes the 0.62 m top.
+        (
+            lambda d: d["plc"]["interlocks"][0].update(high_high_m=0.615, reset_below_m=0.6),
+            "(top level)",
+            "plus one scan at full pump flow (0.00779 m) reaches height_max_m 0.62 m",
+        ),
     ],
 )
 def test_bad_config_is_one_line_naming_file_field_and_rule(
