@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import signal
+import socket
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -443,7 +444,7 @@ def up(
     spd = resolve_speed(speed)
     sec_home = SecurityHome(home or default_home())
     try:
-        created = provision(sec_home, hosts=sorted({"localhost", "127.0.0.1", host}))
+        created = provision(sec_home, hosts=sorted({"localhost", "127.0.0.1", host, socket.gethostname()}))
     except (OSError, TanklabError) as e:
         raise fail(f"{sec_home.root}: cannot set up the PKI and users: {e}") from None
     if created is not None:

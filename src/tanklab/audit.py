@@ -7,9 +7,9 @@ One JSON object per line in ``<audit dir>/<tier>.log``::
      "status": "Good"}
 
 ``action`` is ``write``, ``call`` or ``activate`` (a refused session activation: ``node`` is
-empty, ``new`` names the identity that was tried, ``status`` the reason). The file is opened
-with ``O_APPEND`` for every record, so records are never interleaved or rewritten, and it is
-created 0600: it names users. The OPC UA side (events on the server object) is
+empty, ``new`` names the identity that was tried, ``status`` the reason). The file is kept
+open with ``O_APPEND`` and each record is one ``write``, so records are never interleaved or
+rewritten, and it is created 0600: it names users. The OPC UA side (events on the server object) is
 :class:`tanklab.ua_security.AuditEvents`; it subscribes to :meth:`AuditLog.record` through
 ``listeners``.
 """
@@ -67,6 +67,13 @@ class AuditLog:
         self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
         self.listeners: list[Callable[[AuditRecord], None]] = []
         self.records = 0
+        self._fd: int | None = None
+
+    def close(self) -> None:
+        """Close the file (the next record reopens it)."""
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            os.close(fd)
 
     def record(
         self,
@@ -93,14 +100,13 @@ class AuditLog:
         )
         data = (rec.line() + "\n").encode()
         try:
-            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
-            try:
-                os.write(fd, data)
-            finally:
-                os.close(fd)
+            if self._fd is None:
+                self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+            os.write(self._fd, data)  # one write(2) per record: whole lines, never interleaved
         except OSError as e:
             # The audit trail failing must not take the control tier down; say so loudly.
             log.error("audit log %s: cannot append: %s", self.path, e)
+            self.close()
         self.records += 1
         for listener in self.listeners:
             listener(rec)

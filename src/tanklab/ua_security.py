@@ -360,10 +360,12 @@ class TanklabServer(Server):
             raise
 
     async def stop(self) -> None:
-        """Stop listening and raising audit events."""
+        """Stop listening and raising audit events; close the audit log."""
         if self.audit_events is not None:
             self.audit_events.close()
         await super().stop()
+        if self.audit is not None:
+            self.audit.close()
 
 
 # --------------------------------------------------------------------------------------------
@@ -376,7 +378,8 @@ class AuditEvents:
 
     Records are queued (at most ``QUEUE`` waiting; beyond that events are dropped and counted,
     the file log still has every record) and raised one at a time by a background task, since
-    asyncua's event generator holds one event object.
+    asyncua's event generator holds one event object. While the server has no subscription at
+    all, no event is raised (nobody could receive it; lock-step writes thousands per second).
     """
 
     FIELDS = ("Action", "User", "Role", "Node", "OldValue", "NewValue", "Status")
@@ -384,6 +387,7 @@ class AuditEvents:
 
     def __init__(self) -> None:
         self._generator: Any = None
+        self._subscriptions: dict[int, Any] = {}
         self._queue: asyncio.Queue[AuditRecord] = asyncio.Queue(self.QUEUE)
         self._task: asyncio.Task[None] | None = None
         self.dropped = 0
@@ -398,10 +402,13 @@ class AuditEvents:
             [(f, ua.VariantType.String) for f in self.FIELDS],
         )
         self._generator = await server.get_event_generator(etype, ua.ObjectIds.Server)
+        self._subscriptions = server.iserver.subscription_service.subscriptions
         audit.listeners.append(self._enqueue)
         self._task = asyncio.get_running_loop().create_task(self._run())
 
     def _enqueue(self, rec: AuditRecord) -> None:
+        if not self._subscriptions:
+            return  # nobody could receive it: skip the event's cost (the file has the record)
         try:
             self._queue.put_nowait(rec)
         except asyncio.QueueFull:
