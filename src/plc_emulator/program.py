@@ -20,7 +20,9 @@ A scan (period Ts of model time) does, in order:
    coupled by ``cross_gains``), the NL-PI and MRAC loops as single-loop blocks. REMOTE on a
    non-PID block applies ``RemoteMV`` through the block's MANUAL path, so every block is
    bumpless in every direction. A loop whose PV has been bad for ``pv_bad_scans`` scans applies
-   its substitute output in AUTO and REMOTE (``hold`` or ``value``, at the rate limit).
+   its substitute output in AUTO and REMOTE (``hold`` or ``value``, at the rate limit). A PID
+   group of one loop runs on floats (``Pid.step_siso``, the PID module's single-loop fast path:
+   the same results as its array path, docs/plc.md section 10).
 5. **Interlocks**: a delivered, finite reading at or above high-high (over-range and frozen
    readings included: fail-safe) trips its tank's pumps to their lowest command in every mode,
    with any gains, supervisor alive or not. The trip latches until the level is below the reset
@@ -173,6 +175,9 @@ class _PidGroup:
 
     loops: list[_Loop]
     block: Pid
+    scalar: bool = False
+    """Scan the block through `Pid.step_siso` (one loop: floats, no arrays); set for every
+    one-loop group (tests clear it to scan through `Pid.step` and compare)."""
 
 
 class PlcProgram:
@@ -332,7 +337,7 @@ class PlcProgram:
             substitute_mv=[min(max(lp.spec.substitute_mv, lp.mv_min), lp.mv_max) for lp in loops],
             initial_mode=[lp.mode for lp in loops],
         )
-        group = _PidGroup(loops=loops, block=Pid(cfg, self._group_gains(loops)))
+        group = _PidGroup(loops=loops, block=Pid(cfg, self._group_gains(loops)), scalar=len(loops) == 1)
         for k, lp in enumerate(loops):
             lp.pid = group.block
             lp.pid_index = k
@@ -679,26 +684,48 @@ class PlcProgram:
             self._set_pid_gains()
 
     def _read_inputs(self, levels: FloatArray, delivered: BoolArray, io_healthy: bool) -> None:
+        # Per tank on Python floats: with a handful of tanks, the dozen numpy calls on 3-element
+        # arrays this used to be cost more than the loop (the scan's cost matters to the
+        # co-simulation). Same comparisons, same results.
         self.io_healthy = io_healthy
-        delivered = delivered & np.isfinite(levels) & self.io_healthy
-        self._raw_m = np.where(delivered, levels, np.nan)
-        good = delivered & (levels >= self.tr_range[:, 0]) & (levels <= self.tr_range[:, 1])
-        if self.pv_frozen_scans > 0:
-            same = levels == self._frozen.last
-            self._frozen.repeats = np.where(same, self._frozen.repeats + 1, 0)
+        frozen_n = self.pv_frozen_scans
+        flags, ranges = delivered.tolist(), self.tr_range.tolist()
+        last_good = self.last_good_m.tolist()
+        last, repeats = self._frozen.last.tolist(), self._frozen.repeats.tolist()
+        raw, good, used = [], [], []
+        for k, x in enumerate(levels.tolist()):
+            delivered_k = flags[k] and io_healthy and math.isfinite(x)
+            raw.append(x if delivered_k else math.nan)
+            ok = delivered_k and ranges[k][0] <= x <= ranges[k][1]
+            if frozen_n > 0:
+                repeats[k] = repeats[k] + 1 if x == last[k] else 0
+                ok = ok and repeats[k] < frozen_n
+            good.append(ok)
+            used.append(x if ok else math.nan)
+            if ok:
+                last_good[k] = x
+        if frozen_n > 0:
+            self._frozen.repeats = np.array(repeats, dtype=np.int64)
             self._frozen.last = levels.copy()
-            good &= self._frozen.repeats < self.pv_frozen_scans
-        self.levels_m = np.where(good, levels, np.nan)
-        self.good = good
-        self.last_good_m = np.where(good, levels, self.last_good_m)
+        self._raw_m = np.array(raw, dtype=float)
+        self.levels_m = np.array(used, dtype=float)
+        self.good = np.array(good, dtype=bool)
+        self.last_good_m = np.array(last_good, dtype=float)
 
     def _execute_blocks(self) -> None:
+        good, levels = self.good.tolist(), self.levels_m.tolist()
         for lp in self.loops:
-            lp.pv_bad = not bool(self.good[lp.tank])
-            lp.pv_m = math.nan if lp.pv_bad else float(self.levels_m[lp.tank])
+            lp.pv_bad = not good[lp.tank]
+            lp.pv_m = math.nan if lp.pv_bad else levels[lp.tank]
             if not lp.pv_bad:
                 lp.pv_last_good_m = lp.pv_m
         for group in self.pid_groups:
+            if group.scalar:  # the PID's single-loop fast path: floats, no arrays
+                lp = group.loops[0]
+                one = group.block.step_siso(lp.sp_m * lp.scale, lp.pv_m * lp.scale, not lp.pv_bad)
+                lp.mv = one.mv
+                lp.substituted = one.substituted
+                continue
             sp = np.array([lp.sp_m * lp.scale for lp in group.loops])
             pv = np.array([lp.pv_m * lp.scale for lp in group.loops])  # NaN where bad
             res = group.block.step(sp, pv, np.array([not lp.pv_bad for lp in group.loops]))
@@ -742,16 +769,21 @@ class PlcProgram:
             block.track(mv)
         lp.mv = mv
 
-    def _apply_interlocks(self) -> BoolArray:
-        """Latch trips; return which pumps are forced to their lowest command this scan."""
+    def _apply_interlocks(self) -> list[bool]:
+        """Latch trips; return which pumps (pump order) are forced to their lowest command this scan."""
+        raw = self._raw_m.tolist()
+        any_tripped = False
         for il in self.interlocks:
             # Fail-safe: any delivered finite reading counts, even over-range or frozen.
-            if self._raw_m[il.tank] >= il.high_high_m:
+            if raw[il.tank] >= il.high_high_m:
                 il.tripped = True
+            any_tripped = any_tripped or il.tripped
+        if not any_tripped:  # the usual scan: no pump forced, no block to tell
+            return [False] * self.n_pumps
         tripped = np.zeros(self.n_tanks, dtype=bool)
         for il in self.interlocks:
             tripped[il.tank] |= il.tripped
-        forced: BoolArray = tripped[self.pump_tank]
+        forced: list[bool] = tripped[self.pump_tank].tolist()
         for lp in self.loops:
             if not forced[lp.pump]:
                 continue
@@ -773,10 +805,18 @@ class PlcProgram:
                 lp.remote_mv = held
         return forced
 
-    def _write_outputs(self, forced: BoolArray) -> None:
+    def _write_outputs(self, forced: list[bool]) -> None:
+        commands = self.commands.tolist()
         for lp in self.loops:
-            self.commands[lp.pump] = lp.mv
-        self.commands = np.where(forced, self.pump_min, np.clip(self.commands, self.pump_min, self.pump_max))
+            commands[lp.pump] = lp.mv
+        lows, highs = self.pump_min.tolist(), self.pump_max.tolist()
+        self.commands = np.array(
+            [
+                lo if f else min(max(c, lo), hi)
+                for c, f, lo, hi in zip(commands, forced, lows, highs, strict=True)
+            ],
+            dtype=float,
+        )
 
     # ---- publishing ---------------------------------------------------------------------
 

@@ -439,8 +439,8 @@ class TierClient:
         except Exception as e:
             await _quiet_disconnect(client)
             # asyncua answers a missing namespace URI with list.index's ValueError.
-            reason = f"no {NAMESPACE_URI} namespace" if isinstance(e, ValueError) else None
-            raise UnreachableError(self.tier, self.url, reason or _describe(e, self.timeout_s)) from None
+            missing = f"no {NAMESPACE_URI} namespace" if isinstance(e, ValueError) else None
+            raise UnreachableError(self.tier, self.url, missing or _describe(e, self.timeout_s)) from None
         self._client, self.idx = client, int(idx)
         return self
 

@@ -564,3 +564,138 @@ def test_gain_change_is_bumpless_property(
     assert res.d == pytest.approx([0.0, 0.0], abs=1e-9)
     expected = np.clip(u_prev + np.clip(move, -r.du_max, r.du_max), r.lo, r.hi)
     assert res.mv == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+# --------------------------------------------------------------------------- single-loop fast path
+# A one-loop block computes on Python floats (the module docstring's "single-loop fast path");
+# setting ``_scalar = False`` makes it run the n-loop numpy path instead. The two must agree on
+# every output whatever the configuration, gains, requests and PV history.
+huge = st.sampled_from([1e308, -1e308])  # SP - PV overflows: e = inf, then inf - inf (the NaN hold)
+wide = st.one_of(finite, huge)
+pv_value = st.one_of(finite, huge, st.sampled_from([math.nan, math.inf, -math.inf]))
+one_loop_action = st.one_of(
+    st.tuples(st.just("scan"), wide, pv_value, st.booleans()),
+    st.tuples(st.just("scan"), wide, pv_value, st.booleans()),
+    st.tuples(st.just("mode"), mode_st, st.one_of(st.none(), finite)),
+    st.tuples(st.just("manual"), finite),
+    st.tuples(st.just("remote"), finite),
+    st.tuples(st.just("track"), finite),
+    st.tuples(st.just("gains"), gain, gain, gain),
+)
+
+
+@st.composite
+def one_loop_pair(draw: st.DrawFn) -> tuple[Pid, Pid]:
+    """Two identical one-loop blocks; the second forced onto the numpy path."""
+    lo = draw(st.floats(-100.0, 0.0))
+    hi = lo + draw(st.floats(0.01, 100.0))
+    sp_lo = draw(st.one_of(st.just(-math.inf), st.floats(-1e3, 0.0)))
+    sp_hi = draw(st.one_of(st.just(math.inf), st.floats(0.0, 1e3)))
+    cfg = PidConfig(
+        n_loops=1,
+        ts_s=draw(st.floats(0.01, 10.0)),
+        u_min=lo,
+        u_max=hi,
+        du_max=draw(st.one_of(st.none(), st.floats(1e-3, 10.0))),
+        d_filter_tf_s=draw(st.one_of(st.just(0.0), st.floats(0.0, 5.0))),
+        sp_min=sp_lo,
+        sp_max=sp_hi,
+        sp_rate=draw(st.one_of(st.none(), st.floats(1e-3, 10.0))),
+        direct_acting=draw(st.booleans()),
+        initial_mv=draw(st.floats(lo, hi)),
+        init_memory=draw(st.sampled_from(["zero", "first_error"])),
+        pv_bad_scans=draw(st.integers(1, 4)),
+        substitute=draw(st.sampled_from(["hold", "value"])),
+        substitute_mv=draw(st.floats(lo, hi)),
+        initial_mode=draw(mode_st),
+    )
+    gains = PidGains.diagonal([draw(gain)], [draw(gain)], [draw(gain)])
+    fast, ref = Pid(cfg, gains), Pid(cfg, gains)
+    ref._scalar = False
+    return fast, ref
+
+
+def _same(fast: Any, ref: Any, what: str) -> None:
+    np.testing.assert_allclose(
+        np.asarray(fast, dtype=float), np.asarray(ref, dtype=float), rtol=1e-12, atol=0.0, err_msg=what
+    )
+
+
+@pytest.mark.parametrize("entry", ["step", "step_siso"])
+@settings(max_examples=300, deadline=None)
+@given(pair=one_loop_pair(), actions=st.lists(one_loop_action, min_size=1, max_size=60))
+def test_scalar_fast_path_matches_numpy_path(entry: str, pair: tuple[Pid, Pid], actions: list[Any]) -> None:
+    fast, ref = pair
+    for action in actions:
+        kind = action[0]
+        if kind == "scan":
+            _, sp, pv, good = action
+            with np.errstate(over="ignore", invalid="ignore"):  # the huge inputs overflow on purpose
+                expected = ref.step([sp], [pv], [good])
+            if entry == "step":
+                with np.errstate(over="ignore", invalid="ignore"):
+                    got = fast.step([sp], [pv], [good])
+                for name in ("mv", "working_sp", "error", "p", "i", "d"):
+                    _same(getattr(got, name), getattr(expected, name), name)
+                for name in ("clamped", "rate_limited", "pv_good", "substituted"):
+                    assert np.array_equal(getattr(got, name), getattr(expected, name)), name
+                assert got.modes == expected.modes
+            else:
+                one = fast.step_siso(sp, pv, good)
+                for name in ("mv", "working_sp", "error", "p", "i", "d"):
+                    _same(getattr(one, name), getattr(expected, name)[0], name)
+                    assert type(getattr(one, name)) is float, name
+                for name in ("clamped", "rate_limited", "pv_good", "substituted"):
+                    assert getattr(one, name) == bool(getattr(expected, name)[0]), name
+                assert (one.mode,) == expected.modes
+        elif kind == "mode":
+            _, mode, mv = action
+            mv = None if mode is AUTO else mv
+            fast.set_mode(0, mode, mv)
+            ref.set_mode(0, mode, mv)
+        elif kind == "manual":
+            fast.set_manual_mv(0, action[1])
+            ref.set_manual_mv(0, action[1])
+        elif kind == "remote":
+            fast.set_remote_mv(0, action[1])
+            ref.set_remote_mv(0, action[1])
+        elif kind == "track":
+            fast.track(0, action[1])
+            ref.track(0, action[1])
+        else:
+            fast.set_gains(*([g] for g in action[1:]))
+            ref.set_gains(*([g] for g in action[1:]))
+        for name in ("mv", "manual_mv", "remote_mv", "working_sp"):
+            _same(getattr(fast, name), getattr(ref, name), name)
+        assert np.array_equal(fast.pv_bad_count, ref.pv_bad_count)
+        assert fast.modes == ref.modes
+
+
+def test_scalar_fast_path_oracle_and_diagnostics() -> None:
+    # The hand-computed oracle of test_hand_computed_oracle through step_siso: floats out.
+    pid = siso(2.0, 0.5, 0.1)
+    one = pid.step_siso(1.0, 0.0)
+    assert (one.mv, one.p, one.i, one.d) == pytest.approx((2.6, 2.0, 0.5, 0.1), abs=1e-12)
+    assert one.working_sp == 1.0 and one.error == 1.0 and one.mode is AUTO
+    assert not (one.clamped or one.rate_limited or one.substituted) and one.pv_good
+    assert pid.mv.tolist() == [one.mv]  # the state is shared with step and the properties
+    assert pid.step([0.5], [0.0]).mv[0] == pytest.approx(1.7, abs=1e-12)
+    bad = pid.step_siso(0.5, math.nan)  # a non-finite PV counts as bad: no move, NaN error
+    assert math.isnan(bad.error) and not bad.pv_good and bad.mv == pytest.approx(1.7, abs=1e-12)
+    assert pid.step_siso(0.5, np.float64(0.0), np.bool_(True)).pv_good  # numpy scalars accepted
+
+
+def test_step_siso_refuses_bad_arguments_and_multi_loop_blocks() -> None:
+    pid = siso(1.0, 0.1, 0.0)
+    with pytest.raises(ValueError, match="sp must be finite"):
+        pid.step_siso(math.inf, 0.0)
+    with pytest.raises(TypeError, match="sp"):
+        pid.step_siso("1.0", 0.0)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="pv"):
+        pid.step_siso(1.0, True)
+    with pytest.raises(TypeError, match="pv_good"):
+        pid.step_siso(1.0, 0.0, 1)  # type: ignore[arg-type]
+    assert pid.mv[0] == 0.0  # refused calls change nothing
+    two = Pid(PidConfig(n_loops=2, ts_s=1.0, u_min=0.0, u_max=1.0), PidGains.diagonal([1, 1], [0, 0], [0, 0]))
+    with pytest.raises(ValueError, match="one-loop block"):
+        two.step_siso(1.0, 0.0)
