@@ -135,17 +135,16 @@ def step_rk4(
     n_fine = math.ceil(h / EVENT_SUBSTEP_S - 1e-9) if refine else 1
     y = x.tolist()
     for _ in range(n_sub):
-        if n_fine > 1 and _near_event(f, y, y):
+        # One check of both ends decides, as first checking the start alone and then both would:
+        # a start near an event fails either way (the coarse step is then wasted, rarely).
+        y_new, spilled = _rk4(f, y, h)
+        if n_fine > 1 and (spilled or _near_event(f, y, y_new)):
             steps, hs = n_fine, h / n_fine
         else:
-            y_new, spilled = _rk4(f, y, h)
-            if n_fine > 1 and (spilled or _near_event(f, y, y_new)):
-                steps, hs = n_fine, h / n_fine
-            else:
-                steps, hs = 0, h
-                y = y_new
-                if any(y[i] < 0.0 or y[i] > hmax[i] for i in range(n)):
-                    y = net.project(np.array(y)).tolist()
+            steps, hs = 0, h
+            y = y_new
+            if any(y[i] < 0.0 or y[i] > hmax[i] for i in range(n)):
+                y = net.project(np.array(y)).tolist()
         for _ in range(steps):
             y = _rk4(f, y, hs)[0]
             if any(y[i] < 0.0 or y[i] > hmax[i] for i in range(n)):

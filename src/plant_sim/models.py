@@ -319,6 +319,11 @@ class TankNetwork:
         )
 
     @cached_property
+    def _fixed_memo(self) -> dict[str, _FixedPart]:
+        """The last :func:`_fixed_part` (a cache, not state: it never changes a result)."""
+        return {}
+
+    @cached_property
     def fastest_rate_1_s(self) -> float:
         """Upper bound on the modulus of every eigenvalue of the plant's Jacobian, anywhere [1/s].
 
@@ -414,6 +419,61 @@ class _ScalarConstants:
     lag_rate: list[float]
 
 
+@dataclass(frozen=True)
+class _FixedPart:
+    """What :class:`ScalarRhs` folds in from the valve and leak openings and the disturbances."""
+
+    key: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
+    inflows: list[tuple[int, float]]
+    outflows: list[tuple[int, float]]
+    drains: list[tuple[int, float]]
+    links: list[tuple[int, int, float]]
+    leaks: list[tuple[int, float]]
+
+
+def _fixed_part(net: TankNetwork, u: PlantInputs) -> _FixedPart:
+    """The openings' and disturbances' share of :class:`ScalarRhs`, memoised on the network.
+
+    Between scans usually only the pump commands change, so the last result is kept (in
+    ``net._fixed_memo``) and reused while the openings and disturbances are equal *in value*
+    (compared as floats, so an array changed in place is noticed; NaN never matches and is
+    rebuilt). The memo only skips recomputing the same floats: results are bit-identical
+    (test_models.py: ``test_scalar_rhs_memo_*``).
+    """
+    key = (
+        tuple(u.valve_openings.tolist()),
+        tuple(u.leak_openings.tolist()),
+        tuple(u.disturbances_m3_s.tolist()),
+    )
+    memo = net._fixed_memo
+    last = memo.get("last")
+    if last is not None and last.key == key:
+        return last
+    c = net.scalar_constants
+    valves, leaks, dist = key
+    inflows: list[tuple[int, float]] = []
+    outflows: list[tuple[int, float]] = []
+    for i, d in enumerate(dist):
+        if d < 0.0:
+            outflows.append((i, d))
+        elif d > 0.0:
+            inflows.append((i, d))
+    drains: list[tuple[int, float]] = []
+    links: list[tuple[int, int, float]] = []
+    for (up, down, cond), s in zip(c.valves, valves, strict=True):
+        cs = s * cond
+        if cs == 0.0:
+            continue  # a closed valve passes nothing
+        if down == DRAIN:
+            drains.append((up, cs))
+        else:
+            links.append((up, down, cs))
+    leak = [(i, s * cond) for i, (s, cond) in enumerate(zip(leaks, c.leak, strict=True)) if s * cond != 0.0]
+    part = _FixedPart(key, inflows, outflows, drains, links, leak)
+    memo["last"] = part
+    return part
+
+
 class ScalarRhs:
     """The same right-hand side as :meth:`TankNetwork.rhs`, on Python floats, for one input set.
 
@@ -441,11 +501,12 @@ class ScalarRhs:
 
     def __init__(self, net: TankNetwork, u: PlantInputs) -> None:
         c = net.scalar_constants
-        n = self.n = c.n
+        self.n = c.n
         self.p = c.p
         self.inv_area = c.inv_area
         self.hmax = c.hmax
-        inflow = [0.0] * n
+        fixed = _fixed_part(net, u)
+        inflow = [0.0] * c.n
         v_in0 = 0.0
         self.lagged: list[tuple[int, int, float, float]] = []
         for j, cmd in enumerate(u.pump_commands.tolist()):
@@ -459,30 +520,16 @@ class ScalarRhs:
             else:
                 inflow[c.pump_tank[j]] += q
                 v_in0 += q
-        self.outflows: list[tuple[int, float]] = []
-        for i, d in enumerate(u.disturbances_m3_s.tolist()):
-            if d < 0.0:
-                self.outflows.append((i, d))
-            elif d > 0.0:
-                inflow[i] += d
-                v_in0 += d
+        # inflow disturbances after the pumps: the order of the sums is part of the result's bits
+        for i, d in fixed.inflows:
+            inflow[i] += d
+            v_in0 += d
         self.inflow = inflow
         self.v_in0 = v_in0
-        self.drains: list[tuple[int, float]] = []
-        self.links: list[tuple[int, int, float]] = []
-        for (up, down, cond), s in zip(c.valves, u.valve_openings.tolist(), strict=True):
-            cs = s * cond
-            if cs == 0.0:
-                continue  # a closed valve passes nothing
-            if down == DRAIN:
-                self.drains.append((up, cs))
-            else:
-                self.links.append((up, down, cs))
-        self.leaks = [
-            (i, s * cond)
-            for i, (s, cond) in enumerate(zip(u.leak_openings.tolist(), c.leak, strict=True))
-            if s * cond != 0.0
-        ]
+        self.outflows = fixed.outflows
+        self.drains = fixed.drains
+        self.links = fixed.links
+        self.leaks = fixed.leaks
 
     def __call__(self, x: list[float]) -> list[float]:
         n, p = self.n, self.p

@@ -75,6 +75,10 @@ class PlantSimulator:
         self.last_command_s = 0.0
         self.watchdog_tripped = False
         self._commanded = self.inputs.pump_commands.copy()
+        # the command ranges as Python floats, for set_commands' fast path
+        self._cmd_shape = (self.net.n_pumps,)
+        self._cmd_lo = self.net.pump_cmd_min.tolist()
+        self._cmd_hi = self.net.pump_cmd_max.tolist()
 
     # ---- views --------------------------------------------------------------------------
 
@@ -85,8 +89,23 @@ class PlantSimulator:
 
     @property
     def pump_flows(self) -> FloatArray:
-        """Actual pump flows [m^3/s]."""
-        return self.net.actual_pump_flows(self.x, self.inputs)
+        """Actual pump flows [m^3/s].
+
+        :meth:`TankNetwork.actual_pump_flows` on Python floats (read every co-simulation scan):
+        the same operations in the same order, so the same bits (``test_plant_fast.py``).
+        """
+        c = self.net.scalar_constants
+        n = c.n
+        x = self.x
+        out = []
+        for j, cmd in enumerate(self.inputs.pump_commands.tolist()):
+            if c.lag_rate[j] > 0.0:
+                out.append(float(x[n + j]))
+                continue
+            lo, hi = c.cmd_min[j], c.cmd_max[j]
+            q = c.slope[j] * (hi if cmd > hi else lo if cmd < lo else cmd) + c.offset[j]
+            out.append(c.max_flow[j] if q > c.max_flow[j] else 0.0 if q < 0.0 else q)
+        return np.array(out)
 
     @property
     def commands(self) -> FloatArray:
@@ -135,15 +154,33 @@ class PlantSimulator:
         self._apply_commands()
 
     def set_commands(self, commands: FloatArray) -> None:
-        """Command every pump at once (validated as a whole: all or nothing)."""
-        c = np.asarray(commands, dtype=float)
-        if c.shape != (self.net.n_pumps,):
-            raise ValueError(f"commands need {self.net.n_pumps} values, got shape {c.shape}")
-        if not np.all(np.isfinite(c)):
-            raise ValueError("commands must be finite")
-        if np.any(c < self.net.pump_cmd_min) or np.any(c > self.net.pump_cmd_max):
-            raise ValueError("a command lies outside its pump's range")
-        self._commanded = c.copy()
+        """Command every pump at once (validated as a whole: all or nothing).
+
+        Fast path (every co-simulation scan): a float64 array of the right shape is checked
+        element by element on Python floats (``lo <= v <= hi`` is false for NaN; ``isfinite``
+        catches an infinite command against an infinite bound); anything else, or a refusal,
+        goes through the array checks below, which raise the same errors as before.
+        ``tests/plant_sim/test_plant_fast.py`` checks both paths accept and refuse alike.
+        """
+        if (
+            type(commands) is np.ndarray
+            and commands.dtype == np.float64
+            and commands.shape == self._cmd_shape
+            and all(
+                lo <= v <= hi and math.isfinite(v)
+                for v, lo, hi in zip(commands.tolist(), self._cmd_lo, self._cmd_hi, strict=True)
+            )
+        ):
+            self._commanded = commands.copy()
+        else:
+            c = np.asarray(commands, dtype=float)
+            if c.shape != (self.net.n_pumps,):
+                raise ValueError(f"commands need {self.net.n_pumps} values, got shape {c.shape}")
+            if not np.all(np.isfinite(c)):
+                raise ValueError("commands must be finite")
+            if np.any(c < self.net.pump_cmd_min) or np.any(c > self.net.pump_cmd_max):
+                raise ValueError("a command lies outside its pump's range")
+            self._commanded = c.copy()
         self.last_command_s = self.t_s
         self.watchdog_tripped = False
         self._apply_commands()
@@ -151,8 +188,11 @@ class PlantSimulator:
     def _apply_commands(self) -> None:
         cmd = self._commanded
         if self.watchdog_tripped and self.safe_state == "off":
-            cmd = self.net.pump_cmd_min.copy()
-        self.inputs = replace(self.inputs, pump_commands=cmd.copy())
+            cmd = self.net.pump_cmd_min
+        u = self.inputs
+        # a new inputs object (callers may hold the old one), built directly: what
+        # dataclasses.replace does, at a fifth of its cost
+        self.inputs = PlantInputs(cmd.copy(), u.valve_openings, u.leak_openings, u.disturbances_m3_s)
 
     def _opening(self, value: float, what: str) -> float:
         v = self._finite(value, what)
@@ -213,7 +253,7 @@ class PlantSimulator:
         else:
             self.x = step_adaptive(self.net, self.x, self.inputs, dt_s, t_s=self.t_s)
         self.t_s += dt_s
-        self.readings = self.transmitters.read(self.levels, self.t_s)
+        self.readings = self.transmitters.read(self.x[: self.net.n_tanks], self.t_s)
         return self.readings.copy()
 
     # ---- checkpoints --------------------------------------------------------------------

@@ -120,9 +120,9 @@ class CoSimulation:
             publish=self.supervisor is not None,  # only the supervisor reads the PLC's nodes
         )
         if self.io_healthy:
-            self.plant.set_commands(
-                np.clip(out.commands, self.plant.net.pump_cmd_min, self.plant.net.pump_cmd_max)
-            )
+            net = self.plant.net
+            # np.minimum / np.maximum: np.clip's result at a third of its call overhead
+            self.plant.set_commands(np.minimum(np.maximum(out.commands, net.pump_cmd_min), net.pump_cmd_max))
         self._record(out.commands)
         self._supervise(out.values)
         self.plant.advance(self.ts_s)
@@ -155,7 +155,7 @@ class CoSimulation:
         plant = self.plant
         loops = self.plc.loops
         tr.t_s.append(plant.t_s)
-        tr.levels_m.append(plant.levels)
+        tr.levels_m.append(plant.x[: plant.net.n_tanks].copy())  # plant.levels, one call less
         tr.readings_m.append(plant.readings.copy())
         tr.commands.append(commands.copy())
         tr.setpoints_m.append(np.array([lp.sp_m for lp in loops]))
