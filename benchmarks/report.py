@@ -50,6 +50,8 @@ class Report:
     stack: StackResults | None = None
     settings: dict[str, str] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
+    extra: list[str] = field(default_factory=list)
+    """Whole markdown sections of other benchmark modules (robustness, security), in order."""
 
 
 def _load(cores: float) -> str:
@@ -870,6 +872,8 @@ def _closing(rep: Report) -> list[str]:
 def render(rep: Report) -> str:
     lines = _header(rep) + _goals_section(rep) + _closing(rep) + _mpc_section(rep)
     lines += _cosim_section(rep) + _stack_section(rep)
+    for block in rep.extra:
+        lines += [block.rstrip(), ""]
     if rep.errors:
         lines += ["## Errors", "", *[f"- {e}" for e in rep.errors], ""]
     return "\n".join(lines).rstrip() + "\n"

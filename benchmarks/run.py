@@ -24,10 +24,10 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from benchmarks import accuracy, cosim, mpc, report, stack
+from benchmarks import accuracy, cosim, mpc, report, robustness, security, stack
 from benchmarks.common import ROOT, machine, versions
 
-SECTIONS = ("mpc", "cosim", "stack")
+SECTIONS = ("mpc", "cosim", "stack", "robustness", "security")
 
 
 @dataclass(frozen=True)
@@ -166,9 +166,24 @@ def main(argv: list[str] | None = None) -> int:
             )
         )
 
+    def run_robustness() -> None:
+        _log("randomized robustness scenarios:")
+        result = robustness.random_scenarios(n=25 if args.quick else 100)
+        rep.extra.append(robustness.markdown(result))
+        if result["overflows"] or result["unexplained_overflows"]:
+            rep.errors.append(
+                f"robustness: {result['overflows']} overflows, {result['unexplained_overflows']} unexplained"
+            )
+
+    def run_security() -> None:
+        _log("security robustness (fuzz, flood, freeze and crash, idle sockets):")
+        rep.extra.append(security.markdown(security.run_all(full=not args.quick)))
+
     section("mpc", run_mpc)
     section("cosim", run_cosim)
     section("stack", run_stack)
+    section("robustness", run_robustness)
+    section("security", run_security)
     rep.total_wall_s = time.perf_counter() - started
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(report.render(rep), encoding="utf-8")
