@@ -33,11 +33,21 @@ The cumulative volumes are states of the same ODE, so the volume balance
     sum_i A_i h_i + V_out + V_leaked + V_spilled - V_in - V_stored(0) = 0
 
 is a linear invariant of the ODE and every Runge-Kutta step preserves it to rounding.
+
+The RK4 fast path evaluates this right-hand side through :class:`ScalarRhs`, whose code is
+generated per network and layout (:func:`_generate_rhs`: the loops over tanks, valves, leaks and
+pumps unrolled into straight-line Python, compiled once and cached on the network) because the
+loops cost more than the arithmetic on a handful of floats. It performs the same floating-point
+operations in the same order as the loop form ``ScalarRhs.generic``, so the results are
+bit-identical; tests/plant_sim/test_generated_rhs.py checks that bit for bit on every shipped
+config. To read the generated code: ``print(ScalarRhs(net, u).code.source)``.
 """
 
 from __future__ import annotations
 
+import linecache
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -295,6 +305,8 @@ class TankNetwork:
     @cached_property
     def scalar_constants(self) -> _ScalarConstants:
         """The parameters as Python scalars, for :class:`ScalarRhs` (computed once)."""
+        rates = [1.0 / lag if lag > 0.0 else 0.0 for lag in self.pump_lag_s.tolist()]
+        tanks = self.pump_tank.tolist()
         return _ScalarConstants(
             n=self.n_tanks,
             p=self.n_pumps,
@@ -315,8 +327,28 @@ class TankNetwork:
             cmd_min=self.pump_cmd_min.tolist(),
             cmd_max=self.pump_cmd_max.tolist(),
             max_flow=self.pump_max_flow_m3_s.tolist(),
-            lag_rate=[1.0 / lag if lag > 0.0 else 0.0 for lag in self.pump_lag_s.tolist()],
+            lag_rate=rates,
+            pumps=list(
+                zip(
+                    self.pump_cmd_min.tolist(),
+                    self.pump_cmd_max.tolist(),
+                    self.pump_slope.tolist(),
+                    self.pump_offset_m3_s.tolist(),
+                    self.pump_max_flow_m3_s.tolist(),
+                    tanks,
+                    rates,
+                    strict=True,
+                )
+            ),
+            lagged=tuple(
+                (j, tank, r) for j, (tank, r) in enumerate(zip(tanks, rates, strict=True)) if r > 0.0
+            ),
         )
+
+    @cached_property
+    def _generated(self) -> dict[_Layout, GeneratedRhs]:
+        """Generated right-hand sides by layout (:func:`_generate_rhs`; a cache, not state)."""
+        return {}
 
     @cached_property
     def _fixed_memo(self) -> dict[str, _FixedPart]:
@@ -417,6 +449,16 @@ class _ScalarConstants:
     cmd_max: list[float]
     max_flow: list[float]
     lag_rate: list[float]
+    pumps: list[tuple[float, float, float, float, float, int, float]]
+    """Per pump: cmd_min, cmd_max, slope, offset, max_flow, tank, lag_rate."""
+    lagged: tuple[_Lagged, ...]
+    """Lagged pumps: (j, tank, 1 / lag_s)."""
+
+
+_PartLayout = tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...], tuple[tuple[int, int], ...]]
+"""Outflow, leak and drain tanks and links (up, down) of a :class:`_FixedPart`."""
+_Lagged = tuple[int, int, float]
+"""A lagged pump: (j, tank, 1 / lag_s)."""
 
 
 @dataclass(frozen=True)
@@ -429,6 +471,12 @@ class _FixedPart:
     drains: list[tuple[int, float]]
     links: list[tuple[int, int, float]]
     leaks: list[tuple[int, float]]
+    layout: _PartLayout = ((), (), (), ())
+    """Outflow, leak and drain tanks and links (up, down): what the generated code unrolls."""
+    args: tuple[float, ...] = ()
+    """The generated code's ``make`` arguments from this part: outflows, leaks, drains, links."""
+    generated: list[GeneratedRhs] = field(default_factory=list, compare=False)
+    """The generated code for this part's layout (filled by :class:`ScalarRhs`; a cache)."""
 
 
 def _fixed_part(net: TankNetwork, u: PlantInputs) -> _FixedPart:
@@ -469,7 +517,26 @@ def _fixed_part(net: TankNetwork, u: PlantInputs) -> _FixedPart:
         else:
             links.append((up, down, cs))
     leak = [(i, s * cond) for i, (s, cond) in enumerate(zip(leaks, c.leak, strict=True)) if s * cond != 0.0]
-    part = _FixedPart(key, inflows, outflows, drains, links, leak)
+    part = _FixedPart(
+        key,
+        inflows,
+        outflows,
+        drains,
+        links,
+        leak,
+        layout=(
+            tuple(i for i, _ in outflows),
+            tuple(i for i, _ in leak),
+            tuple(up for up, _ in drains),
+            tuple((up, down) for up, down, _ in links),
+        ),
+        args=(
+            *(d for _, d in outflows),
+            *(cs for _, cs in leak),
+            *(cs for _, cs in drains),
+            *(cs for _, _, cs in links),
+        ),
+    )
     memo["last"] = part
     return part
 
@@ -483,10 +550,19 @@ class ScalarRhs:
     is folded in here (unlagged pump flows and inflow disturbances as a constant inflow per tank;
     closed valves and leaks dropped), so a call only evaluates the orifices. A test checks it
     against :meth:`TankNetwork.rhs` on random states and inputs.
+
+    A call runs generated code (:attr:`fn`; :attr:`fn_at` evaluates at an RK4 stage point
+    ``y + c k``), compiled by :func:`_generate_rhs` once per layout (which valves, leaks and
+    outflow disturbances are active) and cached on the network; :meth:`generic` is the loop
+    form it is generated from and checked against bit for bit
+    (tests/plant_sim/test_generated_rhs.py). ``print(f.code.source)`` shows the code.
     """
 
     __slots__ = (
+        "code",
         "drains",
+        "fn",
+        "fn_at",
         "hmax",
         "inflow",
         "inv_area",
@@ -509,16 +585,18 @@ class ScalarRhs:
         inflow = [0.0] * c.n
         v_in0 = 0.0
         self.lagged: list[tuple[int, int, float, float]] = []
-        for j, cmd in enumerate(u.pump_commands.tolist()):
+        targets: list[float] = []
+        for j, (cmd, (lo, hi, slope, offset, max_flow, tank, rate)) in enumerate(
+            zip(u.pump_commands.tolist(), c.pumps, strict=True)
+        ):
             # pump_target_flows on floats: the command saturated, then the flow
-            lo, hi = c.cmd_min[j], c.cmd_max[j]
-            q = c.slope[j] * (lo if cmd < lo else hi if cmd > hi else cmd) + c.offset[j]
-            q = 0.0 if q < 0.0 else c.max_flow[j] if q > c.max_flow[j] else q
-            rate = c.lag_rate[j]
+            q = slope * (lo if cmd < lo else hi if cmd > hi else cmd) + offset
+            q = 0.0 if q < 0.0 else max_flow if q > max_flow else q
             if rate > 0.0:
-                self.lagged.append((j, c.pump_tank[j], q, rate))
+                self.lagged.append((j, tank, q, rate))
+                targets.append(q)
             else:
-                inflow[c.pump_tank[j]] += q
+                inflow[tank] += q
                 v_in0 += q
         # inflow disturbances after the pumps: the order of the sums is part of the result's bits
         for i, d in fixed.inflows:
@@ -530,8 +608,24 @@ class ScalarRhs:
         self.drains = fixed.drains
         self.links = fixed.links
         self.leaks = fixed.leaks
+        if not fixed.generated:
+            layout: _Layout = (*fixed.layout, c.lagged)
+            cache = net._generated
+            found = cache.get(layout)
+            if found is None:
+                if len(cache) >= _GENERATED_CACHE_SIZE:
+                    cache.clear()  # openings toggled through many layouts: start over, stay bounded
+                found = cache[layout] = _generate_rhs(net, layout)
+            fixed.generated.append(found)
+        code = self.code = fixed.generated[0]
+        self.fn, self.fn_at = code.make(*inflow, v_in0, *targets, *fixed.args)
 
     def __call__(self, x: list[float]) -> list[float]:
+        """dx/dt at ``x`` (the generated code, :attr:`fn`)."""
+        return self.fn(x)
+
+    def generic(self, x: list[float]) -> list[float]:
+        """dx/dt at ``x`` by the loops over the network (the oracle of the generated code)."""
         n, p = self.n, self.p
         lam = H_LAMINAR_M
         sqrt = math.sqrt
@@ -587,3 +681,164 @@ class ScalarRhs:
         dx[n + p + 2] = leaked
         dx[n + p + 3] = spilled
         return dx
+
+
+# ---- generated right-hand side ------------------------------------------------------------
+
+_GENERATED_CACHE_SIZE = 64
+"""Layouts (sets of open valves, leaks, outflows) kept compiled per network."""
+
+_Layout = tuple[
+    tuple[int, ...], tuple[int, ...], tuple[int, ...], tuple[tuple[int, int], ...], tuple[_Lagged, ...]
+]
+"""What a generated right-hand side is unrolled for: outflow, leak and drain tanks, links (up, down),
+lagged pumps (j, tank, 1 / lag_s)."""
+
+RhsFn = Callable[[list[float]], list[float]]
+"""``f(x) -> dx/dt`` on Python floats (the full state; only levels and pump flows are read)."""
+RhsAtFn = Callable[[list[float], list[float], float], list[float]]
+"""``f(y, k, c) -> dx/dt`` at the stage point ``y[i] + c * k[i]`` (levels and pump flows)."""
+
+_GENERATED_DOC = '''"""Right-hand side of one tank network, generated by plant_sim.models._generate_rhs.
+
+Why: the RK4 fast path (plant_sim.integrate.step_rk4) evaluates the right-hand side a few
+times per scan on a handful of floats, where the loops, tuple unpacking and list allocations of
+ScalarRhs.generic cost more than the arithmetic. This is the same code with the loops unrolled
+for one layout (which valves, leaks and outflow disturbances are active) and the network's
+constants as literals: the same floating-point operations in the same order, so the results
+are bit-identical. The held inputs (pump flows, openings times conductances, disturbances)
+are arguments of make(). rhs_at(y, k, c) is rhs at the RK4 stage point y + c * k, computed
+inside it instead of as a new list.
+
+Guarded by tests/plant_sim/test_generated_rhs.py (bit for bit against ScalarRhs.generic over
+random states and inputs, every shipped config, the laminar band, empty and full tanks).
+"""
+'''
+
+
+@dataclass(frozen=True)
+class GeneratedRhs:
+    """Straight-line Python right-hand side for one layout of a network (:func:`_generate_rhs`).
+
+    ``make(*inflows, v_in0, *lagged_targets, *outflows, *leaks, *drains, *links)`` returns
+    ``(rhs, rhs_at)`` for one set of held inputs; :class:`ScalarRhs` calls it. Print
+    :attr:`source` (``print(ScalarRhs(net, u).code.source)``) to read the generated code;
+    tracebacks show its lines too.
+    """
+
+    source: str
+    make: Callable[..., tuple[RhsFn, RhsAtFn]]
+    outside: Callable[[list[float]], bool]
+    """Whether any level of a state is below 0 or above Hmax (then :meth:`TankNetwork.project`)."""
+
+
+def _lit(v: float) -> str:
+    """A float as a source literal that parses back to the same bits."""
+    if math.isfinite(v):
+        return repr(v) if v >= 0.0 and math.copysign(1.0, v) > 0 else f"({v!r})"
+    return f"float('{v!r}')"
+
+
+def _generate_rhs(net: TankNetwork, layout: _Layout) -> GeneratedRhs:
+    """Generate and compile :meth:`ScalarRhs.generic` unrolled for one layout of ``net``.
+
+    ``layout`` = (outflow tanks, leak tanks, drain valves' tanks, links (up, down), lagged pumps
+    (j, tank, 1/lag_s)), as :class:`ScalarRhs` builds it. Every statement below mirrors one of
+    ``generic``: the per-tank sums, ``v_in``, ``v_out``, ``leaked`` and ``spilled`` take their
+    terms in the same order, so the generated code is bit-identical to it.
+    """
+    c = net.scalar_constants
+    n, p = c.n, c.p
+    outflows, leaks, drains, links, lagged = layout
+    names = net.tank_names
+    lam = _lit(H_LAMINAR_M)
+    inv = _lit(_INV_SQRT_LAM)
+    args = [f"inflow{i}" for i in range(n)] + ["v_in0"]
+    args += [f"target{j}" for j, _, _ in lagged]
+    args += [f"d{m}" for m in range(len(outflows))]
+    args += [f"leak{m}" for m in range(len(leaks))]
+    args += [f"drain{m}" for m in range(len(drains))]
+    args += [f"link{m}" for m in range(len(links))]
+
+    def sqrt_law(h: str) -> str:
+        return f"(sqrt({h}) if {h} >= {lam} else ({h} * {inv} if {h} > 0.0 else 0.0))"
+
+    body: list[str] = [f"net{i} = inflow{i}" for i in range(n)]
+    body += ["v_in = v_in0", "v_out = 0.0"]
+    for j, tank, rate in lagged:
+        body += [
+            f"# pump {net.pump_names[j]} (lagged) -> {names[tank]}",
+            f"net{tank} += q{j}",
+            f"v_in += q{j}",
+            f"dq{j} = (target{j} - q{j}) * {_lit(rate)}",
+        ]
+    for m, i in enumerate(outflows):
+        body += [
+            f"# outflow disturbance of {names[i]}, fading out over the last 0.1 mm",
+            f"d = d{m} if h{i} >= {lam} else (d{m} * h{i} / {lam} if h{i} > 0.0 else 0.0)",
+            f"net{i} += d",
+            "v_out -= d",
+        ]
+    body.append("leaked = 0.0")
+    for m, i in enumerate(leaks):
+        body += [
+            f"# leak of {names[i]}",
+            f"q = leak{m} * {sqrt_law(f'h{i}')}",
+            f"net{i} -= q",
+            "leaked += q",
+        ]
+    for m, up in enumerate(drains):
+        body += [
+            f"# outlet of {names[up]} to the drain",
+            f"q = drain{m} * {sqrt_law(f'h{up}')}",
+            f"net{up} -= q",
+            "v_out += q",
+        ]
+    clamped = sorted({i for link in links for i in link})
+    if clamped:
+        body.append("# levels below zero count as empty across a valve")
+        body += [f"p{i} = h{i} if h{i} > 0.0 else 0.0" for i in clamped]
+    for m, (up, down) in enumerate(links):
+        body += [
+            f"# valve {names[up]} -> {names[down]}, signed",
+            f"dh = p{up} - p{down}",
+            f"if dh >= {lam}:",
+            f"    q = link{m} * sqrt(dh)",
+            f"elif dh <= -{lam}:",
+            f"    q = -link{m} * sqrt(-dh)",
+            "else:",
+            f"    q = link{m} * dh * {inv}",
+            f"net{up} -= q",
+            f"net{down} += q",
+        ]
+    body += ["# spilling over the top: the level holds", "spilled = 0.0"]
+    for i in range(n):
+        body += [
+            f"if net{i} > 0.0 and h{i} >= {_lit(c.hmax[i])}:",
+            f"    spilled += net{i}",
+            f"    r{i} = 0.0",
+            "else:",
+            f"    r{i} = net{i} * {_lit(c.inv_area[i])}",
+        ]
+    lagged_j = {j for j, _, _ in lagged}
+    out = [f"r{i}" for i in range(n)] + [f"dq{j}" if j in lagged_j else "0.0" for j in range(p)]
+    body.append(f"return [{', '.join([*out, 'v_in', 'v_out', 'leaked', 'spilled'])}]")
+
+    reads = [f"h{i}" for i in range(n)] + [f"q{j}" for j in sorted(lagged_j)]
+    index = list(range(n)) + [n + j for j in sorted(lagged_j)]
+    pad = " " * 8
+    lines = [_GENERATED_DOC, "", f"def make({', '.join(args)}):", "    def rhs(x):"]
+    lines += [f"{pad}{v} = x[{k}]" for v, k in zip(reads, index, strict=True)]
+    lines += [pad + b for b in body]
+    lines += ["", "    def rhs_at(y, k, c):"]
+    lines += [f"{pad}{v} = y[{k}] + c * k[{k}]" for v, k in zip(reads, index, strict=True)]
+    lines += [pad + b for b in body]
+    lines += ["", "    return rhs, rhs_at", "", "", "def outside(y):"]
+    checks = " or ".join(f"y[{i}] < 0.0 or y[{i}] > {_lit(c.hmax[i])}" for i in range(n))
+    lines += [f"    return {checks or 'False'}", ""]
+    source = "\n".join(lines)
+    filename = f"<plant_sim generated rhs {id(net):x} {len(net._generated)}>"
+    namespace: dict[str, object] = {"sqrt": math.sqrt}
+    exec(compile(source, filename, "exec"), namespace)  # our own generated source
+    linecache.cache[filename] = (len(source), None, source.splitlines(keepends=True), filename)
+    return GeneratedRhs(source=source, make=namespace["make"], outside=namespace["outside"])  # type: ignore[arg-type]
