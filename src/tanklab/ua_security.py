@@ -15,15 +15,18 @@ Server side (:func:`secure_server`)
       (scrypt), acting in the user's role; or an X509 identity token with a tier certificate of
       the PKI (the supervisor's on the PLC: role Supervisor; the PLC's on the plant: role PLC;
       a tier's own on its own server: Observer, for its health probe). Anonymous sessions are
-      refused. Five failed logins lock a user name for 60 s.
+      refused. Five failed logins lock a user name for 60 s; past ten failed logins within 60 s
+      (any names) password checks are suspended for the rest of the window. The scrypt check
+      (~70 ms) runs in a worker thread before asyncua's synchronous user lookup, so logins never
+      hold up the tier's event loop.
     * Roles are checked per node by :class:`tanklab.ua.WriteGuard` and the method adapter.
     * Audit: every write and call (accepted or refused) and every refused session activation
       goes to the tier's :class:`~tanklab.audit.AuditLog` and is raised as a
       ``TanklabAuditEventType`` event on the Server object.
     * Limits (:data:`LIMITS`): 64 KiB chunks, at most 4 per message (256 KiB), 16 queued
       messages per connection, 256 connections, 2 s to finish the handshake (Hello through
-      ActivateSession), sessions of at most 30 s timeout; a chunk header announcing more than the
-      chunk limit closes the connection at once.
+      ActivateSession), sessions of at most 30 s timeout, publishing intervals of at least
+      100 ms; a chunk header announcing more than the chunk limit closes the connection at once.
 
 Client side (:func:`secure_client`)
     A tier (PLC to plant, supervisor to PLC) connects with its own certificate on the channel
@@ -35,15 +38,18 @@ Client side (:func:`secure_client`)
 from __future__ import annotations
 
 import asyncio
+import hmac
 import logging
+import os
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from asyncua import Client, Server, ua
-from asyncua.common.utils import ServiceError
+from asyncua.common.utils import Buffer, ServiceError
 from asyncua.crypto import uacrypto
 from asyncua.crypto.permission_rules import User
 from asyncua.crypto.security_policies import SecurityPolicyAes128Sha256RsaOaep, SecurityPolicyBasic256Sha256
@@ -51,7 +57,7 @@ from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 from asyncua.server.binary_server_asyncio import BinaryServer, OPCUAProtocol
 from asyncua.server.uaprocessor import UaProcessor
-from asyncua.ua.ua_binary import struct_from_binary
+from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 from cryptography import x509
 
 from tanklab.audit import AuditLog, AuditRecord
@@ -97,6 +103,9 @@ class Limits:
     max_connections: int = 256
     handshake_s: float = 2.0
     max_session_timeout_ms: float = 30_000.0
+    min_publishing_interval_ms: float = 100.0
+    max_failed_logins: int = 10
+    failed_login_window_s: float = 60.0
 
     @property
     def message_bytes(self) -> int:
@@ -124,6 +133,10 @@ _DISCOVERY = frozenset(
     )
 )
 _CREATE_SESSION = ua.NodeId(ua.ObjectIds.CreateSessionRequest_Encoding_DefaultBinary)
+_SUBSCRIPTION_PARAMS = {
+    ua.NodeId(ua.ObjectIds.CreateSubscriptionRequest_Encoding_DefaultBinary): ua.CreateSubscriptionParameters,
+    ua.NodeId(ua.ObjectIds.ModifySubscriptionRequest_Encoding_DefaultBinary): ua.ModifySubscriptionParameters,
+}
 _ACTIVATE_SESSION = ua.NodeId(ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary)
 _TCP_TYPES = frozenset({b"HEL", b"ACK", b"ERR", b"RHE", b"OPN", b"CLO", b"MSG"})
 
@@ -160,6 +173,9 @@ class TankUserManager:
         self.audit = audit
         self.lockout = lockout or Lockout()
         self.clock = clock
+        self._failures: deque[float] = deque()
+        self._verdicts: dict[tuple[str, bytes], Role | None] = {}
+        self._key = os.urandom(32)
         self._users: UsersFile | None = None
         self._stamp: tuple[float, int] | None = None
 
@@ -190,17 +206,50 @@ class TankUserManager:
         self._refuse("anonymous", "anonymous sessions are not allowed")
         return None
 
+    def _verdict_key(self, username: str, password: str) -> tuple[str, bytes]:
+        # The password itself is not kept, only a keyed digest of it for the moment between
+        # the off-loop check and asyncua's synchronous call.
+        return username, hmac.new(self._key, password.encode(), "sha256").digest()
+
+    async def preverify(self, username: str, password: str) -> None:
+        """Check a login's password in a worker thread (scrypt releases the GIL), so that the
+        synchronous :meth:`get_user` asyncua calls next finds the verdict ready and the tier's
+        event loop (its scan) never waits ~70 ms for a hash."""
+        now = self.clock()
+        if self.lockout.locked(username, now) or self._over_budget(now):
+            return  # get_user refuses these without hashing
+        users = self._current_users()
+        role = await asyncio.to_thread(users.verify, username, password)
+        if len(self._verdicts) < 1000:
+            self._verdicts[self._verdict_key(username, password)] = role
+
+    def _over_budget(self, now: float) -> bool:
+        while self._failures and now - self._failures[0] >= LIMITS.failed_login_window_s:
+            self._failures.popleft()
+        return len(self._failures) >= LIMITS.max_failed_logins
+
     def _password_user(self, username: str, password: str) -> User | None:
         now = self.clock()
         if self.lockout.locked(username, now):
             self._refuse(username, "locked")
             return None
+        if self._over_budget(now):
+            # The hash runs on the server's event loop (asyncua asks synchronously): a storm of
+            # wrong logins, e.g. with ever new names the per-name lockout cannot catch, would
+            # steal the scan's time. Past the budget, logins wait until the window has passed.
+            self._refuse(username, "too many failed logins; try again later")
+            return None
         try:
-            role = self._current_users().verify(username, password)
+            key = self._verdict_key(username, password)
+            if key in self._verdicts:
+                role = self._verdicts.pop(key)
+            else:  # not pre-verified (a direct call): hash here
+                role = self._current_users().verify(username, password)
         except Exception as e:  # a broken users file refuses everybody, loudly
             log.error("users file %s unusable: %s", self.users_file, e)
             role = None
         if role is None:
+            self._failures.append(now)
             locks = self.lockout.failed(username, now)
             self._refuse(username, "locked after repeated failures" if locks else "bad user name or password")
             return None
@@ -265,6 +314,21 @@ class _SecureProcessor(UaProcessor):
 
     audit: AuditLog | None = None
 
+    async def _preverify(self, body: Any) -> None:
+        """Hash a user-name login's password off the event loop before asyncua asks for it."""
+        manager = self.iserver.user_manager
+        if not isinstance(manager, TankUserManager) or self.session is None:
+            return
+        try:
+            params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
+            token = params.UserIdentityToken
+            if not isinstance(token, ua.UserNameIdentityToken):
+                return
+            name, password = self.iserver.decrypt_user_token(self.session, token)
+        except Exception:
+            return  # asyncua's own activation path reports a malformed token
+        await manager.preverify(name, password)
+
     async def _process_message(self, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
         policy = self._connection.security_policy
         if policy.Mode != ua.MessageSecurityMode.SignAndEncrypt and typeid not in _DISCOVERY:
@@ -282,6 +346,10 @@ class _SecureProcessor(UaProcessor):
             if params.ClientCertificate != policy.peer_certificate:
                 # The session's certificate must be the one that signed the channel.
                 raise ServiceError(ua.StatusCodes.BadCertificateInvalid)
+        if typeid in _SUBSCRIPTION_PARAMS:
+            body = _clamped_subscription(_SUBSCRIPTION_PARAMS[typeid], body)
+        if typeid == _ACTIVATE_SESSION:
+            await self._preverify(body)
         token = CURRENT_USER.set(self.session.user if self.session is not None else None)
         try:
             return await super()._process_message(typeid, requesthdr, seqhdr, body)
@@ -297,6 +365,17 @@ class _SecureProcessor(UaProcessor):
             raise
         finally:
             CURRENT_USER.reset(token)
+
+
+def _clamped_subscription(kind: Any, body: Any) -> Any:
+    """The request body with its publishing interval raised to the server's minimum (asyncua
+    takes any interval, down to a busy loop: one client could take a core)."""
+    params = struct_from_binary(kind, body.copy())
+    floor = LIMITS.min_publishing_interval_ms
+    if not params.RequestedPublishingInterval >= floor:  # also NaN
+        params.RequestedPublishingInterval = floor
+        return Buffer(struct_to_binary(params))
+    return body
 
 
 class _Protocol(OPCUAProtocol):

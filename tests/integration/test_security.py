@@ -628,3 +628,21 @@ async def test_a_fresh_pki_is_complete_and_private(tmp_path: Path) -> None:
     assert pki.exists()
     for name in ("plant", "plc", "supervisor", "cli"):
         assert pki.key_path(name).stat().st_mode & 0o777 == 0o600
+
+
+async def test_publishing_intervals_are_clamped(plc_server: Servers) -> None:
+    """Regression: asyncua takes any publishing interval (1 us took a core per subscription)."""
+    client = await connect(plc_server.urls["plc"], identity("observer"))
+    try:
+        params = ua.CreateSubscriptionParameters(
+            RequestedPublishingInterval=0.001,
+            RequestedLifetimeCount=300,
+            RequestedMaxKeepAliveCount=10,
+            MaxNotificationsPerPublish=0,
+            PublishingEnabled=True,
+            Priority=0,
+        )
+        result = await client.uaclient.create_subscription(params, lambda _: None)
+        assert result.RevisedPublishingInterval >= LIMITS.min_publishing_interval_ms
+    finally:
+        await client.disconnect()
