@@ -56,8 +56,8 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 from rich.text import Text
-from typer.core import TyperCommand
 
+from tankctl.usage import OneLineUsage
 from tanklab.clock import Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import (
     ENV_ENDPOINT_VARS,
@@ -815,22 +815,6 @@ class _StopOnSignal:
         loop = asyncio.get_running_loop()
         for sig in self._installed:
             loop.remove_signal_handler(sig)
-
-
-class _OneLineErrors(TyperCommand):
-    """Usage errors (missing argument, bad number, unknown option) as one line, exit code 2."""
-
-    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
-        try:
-            return super().parse_args(ctx, args)
-        except typer.TyperException as e:  # typer's vendored click UsageError and subclasses
-            names: list[str] = []
-            c = ctx
-            while c is not None and c.parent is not None:
-                names.append(c.info_name or "")
-                c = c.parent
-            typer.echo(f"tankctl {' '.join(reversed(names))}: {e.format_message()}", err=True)
-            raise typer.Exit(getattr(e, "exit_code", 2)) from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -1956,7 +1940,7 @@ scenario_app = typer.Typer(
 
 def add_scenario_commands(group: typer.Typer) -> None:
     """Add ``run`` to a ``scenario`` command group (this module's or an existing one)."""
-    group.command("run", cls=_OneLineErrors)(scenario_run)
+    group.command("run", cls=OneLineUsage)(scenario_run)
 
 
 add_scenario_commands(scenario_app)
@@ -1975,5 +1959,5 @@ def register(app: typer.Typer) -> None:
         ("browse", browse),
         ("watch", watch),
     ):
-        app.command(name, cls=_OneLineErrors)(func)
+        app.command(name, cls=OneLineUsage)(func)
     app.add_typer(scenario_app, name="scenario")

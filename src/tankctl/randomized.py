@@ -62,8 +62,8 @@ from plant_sim.linearize import level_rhs
 from plant_sim.models import FloatArray, PlantInputs, TankNetwork, default_inputs
 from plc_emulator.program import GainStatus
 from tankctl.cosim import CoSimulation
+from tankctl.simulate import apply_event as apply_scenario_event
 from tanklab.config import SiteConfig
-from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.scenario import (
     DisturbanceEvent,
     LeakEvent,
@@ -661,26 +661,12 @@ def apply_event(cs: CoSimulation, ev: RandomEvent) -> str | None:
     ValueError
         A request outside its node's range (a generator bug: the OPC UA layer would refuse it).
     """
-    if isinstance(ev, SetpointEvent):
-        cs.plc.set_sp(ev.loop, ev.value_m)
-    elif isinstance(ev, LeakEvent):
-        cs.plant.set_leak(ev.tank, ev.opening)
-    elif isinstance(ev, DisturbanceEvent):
-        cs.plant.set_disturbance(ev.tank, ev.flow_m3_s)
-    elif isinstance(ev, LoopModeEvent):
-        # Mode first, then the output (the MANUAL switch is bumpless and starts from the MV).
-        cs.plc.set_mode(ev.loop, LoopMode[ev.mode])
-        if ev.mv_percent is not None:
-            lp = cs.plc.loop(ev.loop)
-            cs.plc.set_manual_mv(ev.loop, lp.mv_min + ev.mv_percent / 100.0 * (lp.mv_max - lp.mv_min))
-    elif isinstance(ev, SupervisorModeEvent):
-        if cs.supervisor is None:
-            raise ValueError("the site has no supervisor")
-        cs.supervisor.request_mode(SupervisorMode[ev.mode])
-    elif isinstance(ev, GainsEvent):
+    if isinstance(ev, GainsEvent):
         status = cs.plc.stage_gains(ev.loop, ev.kp, ev.ki, ev.kd)
         if status is not GainStatus.STAGED:
             return f"t = {ev.at_s:g} s {describe(ev)}: {status.value}"
+    elif not isinstance(ev, InterlockResetEvent):
+        apply_scenario_event(cs, ev)  # the scenario kinds, exactly as `tankctl simulate` applies them
     else:
         cs.plc.reset_interlocks()
     return None

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Annotated, Any, NoReturn, TypeVar
 
 import typer
-from typer.core import TyperCommand
 
+from tankctl.usage import OneLineUsage
 from tanklab.errors import TanklabError
 from tanklab.home import SecurityHome, default_home
 from tanklab.pki import DEFAULT_DAYS, DEFAULT_HOSTS, IDENTITIES, Pki, describe, init_pki, revoke, trust
@@ -41,22 +41,6 @@ ENV_NEW_PASSWORD = "TANKLAB_NEW_PASSWORD"
 """Environment variable ``user add`` takes the new password from (when not --password-stdin)."""
 
 _T = TypeVar("_T")
-
-
-class _OneLineUsage(TyperCommand):
-    """Usage errors (missing argument, unknown option) as one line on stderr, exit code 2."""
-
-    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
-        try:
-            return super().parse_args(ctx, args)
-        except typer.TyperException as e:  # typer's vendored click UsageError and subclasses
-            names: list[str] = []
-            c = ctx
-            while c is not None and c.parent is not None:
-                names.append(c.info_name or "")
-                c = c.parent
-            typer.echo(f"tankctl {' '.join(reversed(names))}: {e.format_message()}", err=True)
-            raise typer.Exit(getattr(e, "exit_code", 2)) from None
 
 
 pki_app = typer.Typer(
@@ -109,7 +93,7 @@ def _stdin_is_terminal() -> bool:
 # --------------------------------------------------------------------------------------------
 
 
-@pki_app.command("init", cls=_OneLineUsage)
+@pki_app.command("init", cls=OneLineUsage)
 def pki_init(
     home: HomeOpt = None,
     host: Annotated[
@@ -135,7 +119,7 @@ def pki_init(
     typer.echo(f"private keys in {pki.private_dir} (0600); trusted: {pki.trusted_dir}; CRL: {pki.crl_file}")
 
 
-@pki_app.command("trust", cls=_OneLineUsage)
+@pki_app.command("trust", cls=OneLineUsage)
 def pki_trust(
     file: Annotated[Path, typer.Argument(help="Certificate to trust (DER or PEM).")],
     home: HomeOpt = None,
@@ -147,7 +131,7 @@ def pki_trust(
     typer.echo(f"trusted {file} as {stored} (SHA-1 {row['sha1']}, {row['subject']})")
 
 
-@pki_app.command("revoke", cls=_OneLineUsage)
+@pki_app.command("revoke", cls=OneLineUsage)
 def pki_revoke(
     file: Annotated[Path, typer.Argument(help="A certificate issued by the tanklab CA.")],
     home: HomeOpt = None,
@@ -177,7 +161,7 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
     return ["  ".join(c[i].ljust(widths[i]) for i in range(len(head))).rstrip() for c in [head, *cells]]
 
 
-@pki_app.command("show", cls=_OneLineUsage)
+@pki_app.command("show", cls=OneLineUsage)
 def pki_show(
     home: HomeOpt = None,
     as_json: Annotated[
@@ -221,7 +205,7 @@ def _new_password(from_stdin: bool) -> str:
     return str(answer)
 
 
-@user_app.command("add", cls=_OneLineUsage)
+@user_app.command("add", cls=OneLineUsage)
 def user_add(
     name: Annotated[str, typer.Argument(help="User name: [A-Za-z0-9_.-], 1 to 64 characters.")],
     role: Annotated[str, typer.Option("--role", help="Observer, Operator or Engineer.")],
@@ -246,7 +230,7 @@ def user_add(
     typer.echo(f"{'replaced' if existed else 'added'} user {name} ({matches[0].value}) in {path}")
 
 
-@user_app.command("list", cls=_OneLineUsage)
+@user_app.command("list", cls=OneLineUsage)
 def user_list(home: HomeOpt = None) -> None:
     """List users and their roles."""
     path = _home(home).users_file
@@ -261,7 +245,7 @@ def user_list(home: HomeOpt = None) -> None:
         typer.echo(f"{name.ljust(width)}  {record.role.value}")
 
 
-@user_app.command("remove", cls=_OneLineUsage)
+@user_app.command("remove", cls=OneLineUsage)
 def user_remove(
     name: Annotated[str, typer.Argument(help="User to remove.")],
     home: HomeOpt = None,

@@ -303,8 +303,8 @@ def _describe(ev: Event) -> str:
     return f"supervisor {ev.mode}"
 
 
-def _apply_event(cs: CoSimulation, ev: Event) -> None:
-    """Apply one event to the co-simulation, as the operator's client would write it."""
+def apply_event(cs: CoSimulation, ev: Event) -> None:
+    """Apply one scenario event to the co-simulation, as the operator's client would write it."""
     if isinstance(ev, SetpointEvent):
         cs.plc.set_sp(ev.loop, ev.value_m)
     elif isinstance(ev, LeakEvent):
@@ -394,7 +394,7 @@ def run_variant(
     for k in range(n):
         for i, ev in due.get(k, []):
             try:
-                _apply_event(cs, ev)
+                apply_event(cs, ev)
             except (ValueError, KeyError) as e:
                 msg = str(e).strip("'\"")
                 raise ConfigError(f"{scenario.name}: events[{i}] ({ev.kind} at {ev.at_s:g} s): {msg}") from e

@@ -18,12 +18,11 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import typer
 from rich.console import Console
 from rich.table import Table
-from typer.core import TyperCommand
 
 from plc_emulator.tuning import (
     imc_from_denominator,
@@ -33,23 +32,13 @@ from plc_emulator.tuning import (
     velocity_gains,
     ziegler_nichols_open_loop,
 )
+from tankctl.usage import OneLineUsage
 
 __all__ = ["app"]
 
 
-class _OneLineErrors(TyperCommand):
-    """A command whose usage errors (missing option, bad number) print one line, exit code 2.
-
-    Typer would otherwise print a boxed, multi-line usage message; the project's rule for the
-    CLI is one line on stderr.
-    """
-
-    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
-        try:
-            return super().parse_args(ctx, args)
-        except typer.TyperException as e:  # typer's vendored click UsageError and subclasses
-            typer.echo(f"tankctl tune {self.name}: {e.format_message()}", err=True)
-            raise typer.Exit(getattr(e, "exit_code", 2)) from None
+class _TuneUsage(OneLineUsage):
+    group = "tune"
 
 
 app = typer.Typer(
@@ -98,7 +87,7 @@ def _parse_den(den: str | None, extra: list[str]) -> tuple[float, ...]:
         raise ValueError(f"--den takes numbers, got {' '.join(tokens)!r}") from None
 
 
-@app.command(cls=_OneLineErrors, context_settings={"allow_extra_args": True})
+@app.command(cls=_TuneUsage, context_settings={"allow_extra_args": True})
 def imc(
     ctx: typer.Context,
     lam: Annotated[float, typer.Option("--lam", help="IMC filter time constant lambda in s.")],
@@ -154,7 +143,7 @@ def imc(
     _emit(f"IMC {'PID' if pid else 'PI'} (lambda = {result.lam:g} s)", rows, as_json)
 
 
-@app.command(cls=_OneLineErrors)
+@app.command(cls=_TuneUsage)
 def nlpi(
     b: Annotated[
         float, typer.Option("--b", help="Input gain b in m/s per MV unit of dh/dt = b u - a' sqrt(h).")
@@ -194,7 +183,7 @@ def nlpi(
     _emit("Nonlinear PI", rows, as_json)
 
 
-@app.command(cls=_OneLineErrors)
+@app.command(cls=_TuneUsage)
 def zn(
     gain: Annotated[float, typer.Option("--gain", help="Process gain K of K e^{-theta s} / (tau s + 1).")],
     dead_time: Annotated[float, typer.Option("--dead-time", help="Dead time theta in s.")],
