@@ -11,7 +11,10 @@ reads; so errors and MVs belong to the same scan. Then, by mode:
 - ADAPTIVE_PID: as ADVISORY, and every push period the adapter proposes a gain set that passes
   every guard; it is pushed through ``SetGains`` (digest 2.4 with its corrections).
 - MPC: the loops are put in REMOTE and the MPC's input, converted to each pump's unit, is
-  written to ``RemoteMV`` every cycle (the OPC UA MPC paper's architecture).
+  written to ``RemoteMV`` every cycle (the OPC UA MPC paper's architecture). When a loop leaves
+  REMOTE behind the supervisor's back (the PLC's watchdog fell back after a stall, an operator
+  took it), the supervisor sheds to ADVISORY and counts it (``sheds``): it never reports MPC
+  while it no longer drives the pumps.
 
 Bumpless switches: entering MPC first writes ``RemoteMV`` = the applied MV and only then the
 REMOTE mode, and the MPC starts from the applied input; leaving MPC puts the loops back in AUTO,
@@ -180,6 +183,9 @@ class SupervisorCore:
         self.result: MpcResult | None = None
         self.push_scan = -10
         self.pushes_refused = 0
+        self.remote_since_scan: int | None = None  # MPC: first scan that shows the loops in REMOTE
+        self.sheds = 0  # MPC shed to ADVISORY because a loop left REMOTE
+        self.shed_reason = ""
         self._last_r: FloatArray | None = None
         self.adapter: PidGainAdapter | None = self._build_adapter() if self._all_pid() else None
 
@@ -274,6 +280,7 @@ class SupervisorCore:
         """Run one cycle on a new PLC snapshot; return the actions to write and the values."""
         act = Actions()
         prev = self.last
+        self._shed_if_loops_left_remote(snap, act)
         self._switch_mode(snap, act)
         self.cycles += 1
         if self.mode is not SupervisorMode.OFF:
@@ -281,6 +288,26 @@ class SupervisorCore:
         self.last = snap
         act.values.update(self.values())
         return act
+
+    def _shed_if_loops_left_remote(self, snap: PlcSnapshot, act: Actions) -> None:
+        """MPC drives the pumps only through loops in REMOTE. When a loop has left REMOTE since
+        the MPC put it there (the PLC's heartbeat watchdog fell back to AUTO, an operator took
+        it), the supervisor sheds to ADVISORY instead of planning for pumps it no longer drives,
+        and says so (``sheds``); an engineer re-engages MPC. It does not fight the PLC or the
+        operator for the loops: loops still in REMOTE go back to AUTO (bumpless), the others
+        keep what they were given."""
+        if self.mode is not SupervisorMode.MPC or self.requested is not SupervisorMode.MPC:
+            return
+        if self.remote_since_scan is None or snap.scan <= self.remote_since_scan:
+            return  # the REMOTE writes of the entry have not been seen yet
+        left = [name for name, m in zip(self.loop_names, snap.modes, strict=True) if m is not LoopMode.REMOTE]
+        if left:
+            for name, m in zip(self.loop_names, snap.modes, strict=True):
+                if m is LoopMode.REMOTE:
+                    act.modes[name] = LoopMode.AUTO
+            self.mode = self.requested = SupervisorMode.ADVISORY
+            self.sheds += 1
+            self.shed_reason = f"{', '.join(left)} left REMOTE at PLC scan {snap.scan}"
 
     def _switch_mode(self, snap: PlcSnapshot, act: Actions) -> None:
         if self.requested is self.mode:
@@ -292,6 +319,7 @@ class SupervisorCore:
             for j, name in enumerate(self.loop_names):
                 act.remote_mv[name] = float(snap.mv[j])
                 act.modes[name] = LoopMode.REMOTE
+            self.remote_since_scan = snap.scan + 1  # the first scan that can show them in REMOTE
         if self.requested is SupervisorMode.ADAPTIVE_PID and self.adapter is not None:
             self.adapter.set_applied(self._applied(snap))
         self.mode = self.requested

@@ -101,7 +101,12 @@ async def run_supervisor(
                 )
                 if cycles_due:
                     last_cycle_scan = snap.scan
+                    sheds = core.sheds
                     actions = core.cycle(snap)
+                    if core.sheds > sheds:
+                        log.warning(
+                            "MPC shed to ADVISORY: %s (re-engage with `tankctl mode mpc`)", core.shed_reason
+                        )
                     if await link.apply(actions):
                         core.push_refused()
                     await server.publish(actions.values)

@@ -405,3 +405,32 @@ def test_adaptation_config_of_the_energies_site() -> None:
     assert cfg.max_change_fraction == pytest.approx(np.exp(10.0 / 27.2) - 1.0, abs=0.005)
     assert cfg.excitation_threshold == 0.02
     assert isinstance(cfg, AdaptationConfig)
+
+
+def test_mpc_sheds_to_advisory_when_a_loop_leaves_remote() -> None:
+    """An operator takes LIC1 out of REMOTE under a running MPC: the supervisor stops claiming
+    MPC (sheds to ADVISORY, counted, with the reason), puts LIC2 back to AUTO bumplessly and
+    leaves LIC1 as the operator set it; an engineer's new request re-engages MPC."""
+    from tankctl.cosim import CoSimulation
+    from tanklab.config import load_site
+    from tanklab.enums import LoopMode
+    from tanklab.enums import SupervisorMode as Mode
+
+    site = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
+    cs = CoSimulation(site, supervisor_mode="MPC")
+    cs.run(30.0)
+    sup = cs.supervisor
+    assert sup is not None and sup.mode is Mode.MPC
+    assert [lp.mode for lp in cs.plc.loops] == [LoopMode.REMOTE, LoopMode.REMOTE]
+    cs.plc.set_mode("LIC1", LoopMode.MANUAL)
+    mv2 = cs.plc.loop("LIC2").mv
+    cs.run(5.0)
+    assert sup.mode is Mode.ADVISORY and sup.sheds == 1
+    assert "LIC1 left REMOTE" in sup.shed_reason
+    assert [lp.mode for lp in cs.plc.loops] == [LoopMode.MANUAL, LoopMode.AUTO]
+    assert abs(cs.trace.commands[-5][1] - mv2) <= 0.01 * 1.2e-4  # LIC2's switch to AUTO is bumpless
+    cs.plc.set_mode("LIC1", LoopMode.AUTO)
+    sup.request_mode(Mode.MPC)
+    cs.run(5.0)
+    assert sup.mode is Mode.MPC and sup.sheds == 1
+    assert [lp.mode for lp in cs.plc.loops] == [LoopMode.REMOTE, LoopMode.REMOTE]
