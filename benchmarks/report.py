@@ -265,7 +265,7 @@ def _header(rep: Report) -> list[str]:
         f"Written by `{rep.command}` on {rep.date}"
         + (" (**quick pass**: shorter runs, fewer samples)" if rep.quick else "")
         + f"; the whole run took {fmt(rep.total_wall_s / 60.0, 2)} min of wall time. "
-        "Do not edit: rerun `make bench` (about 9 minutes on 2 cores; "
+        "Do not edit: rerun `make bench` (about 15 minutes on 2 cores; "
         "`python -m benchmarks.run --quick` for a fast pass that writes `var/benchmarks-quick.md`).",
         "",
         "Every table comes from this one run. Times are wall-clock (`time.perf_counter`) unless the "

@@ -143,7 +143,7 @@ def random_scenarios(n: int = 100, seed: int = 0) -> dict[str, Any]:
 def markdown(result: dict[str, Any]) -> str:
     """The section of docs/benchmarks.md: one row per suite."""
     lines = [
-        "## 8. Randomized robustness scenarios (co-simulation)",
+        "## 7. Randomized robustness scenarios (co-simulation)",
         "",
         f"`benchmarks.robustness.random_scenarios(n={result['n']}, seed={result['seed']})`: per suite, "
         f"{result['n']} seeded scenarios of random setpoints, leaks, gains (through the PLC's "
