@@ -188,8 +188,6 @@ def bench_home() -> Path:
 def cli_setup() -> ClientSetup:
     """A :class:`tanklab.ua.Link` setup logging in as the bench home's engineer."""
     from tanklab.home import SecurityHome
-    from tanklab.ua_security import ClientIdentity, client_setup
-    from tanklab.users import load_credentials
+    from tanklab.ua_security import cli_identity, client_setup
 
-    home = SecurityHome(bench_home())
-    return client_setup(ClientIdentity(home, "cli", load_credentials(home.credentials_file, {})))
+    return client_setup(cli_identity(SecurityHome(bench_home()), {}))

@@ -99,11 +99,11 @@ from plant_sim.models import TankNetwork, default_inputs
 from tanklab.config import SiteConfig
 from tanklab.enums import LoopMode
 from tanklab.home import SecurityHome
-from tanklab.pki import init_pki
+from tanklab.home import provision as provision_home
 from tanklab.tags import DataType, Role, Tag, plc_tags
 from tanklab.ua import namespace_index
 from tanklab.ua_security import LIMITS, ClientIdentity, secure_client
-from tanklab.users import Credentials, UsersFile, generate_password
+from tanklab.users import Credentials, load_credentials
 
 HOST = "127.0.0.1"
 SITE = load(ENERGIES)
@@ -160,15 +160,13 @@ ROLE_OF = {"engineer": Role.ENGINEER, "operator": Role.OPERATOR, "supervisor": R
 
 
 def provision(root: Path) -> Logins:
-    """A fresh security home at ``root``: the PKI and one engineer with a random password."""
+    """A fresh security home at ``root``: the PKI and one engineer with a random password
+    (what ``tankctl up`` provisions on first run)."""
     home = SecurityHome(root)
-    home.ensure()
-    init_pki(home.pki.root)
-    users = UsersFile.load(home.users_file)
-    password = generate_password()
-    users.add("engineer", Role.ENGINEER, password)
-    users.save()
-    return Logins(home, {"engineer": Credentials("engineer", password)})
+    provision_home(home)
+    creds = load_credentials(home.credentials_file, {})
+    assert creds is not None, f"{home.credentials_file}: not written by provision"
+    return Logins(home, {creds.username: creds})
 
 
 @contextlib.asynccontextmanager

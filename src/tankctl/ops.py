@@ -68,7 +68,6 @@ from tanklab.config import (
 )
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
 from tanklab.errors import SecurityError, TanklabError
-from tanklab.home import SecurityHome, default_home
 from tanklab.scenario import (
     DisturbanceEvent,
     Event,
@@ -92,8 +91,7 @@ from tanklab.tags import (
     tags_by_path,
 )
 from tanklab.ua import write_value
-from tanklab.ua_security import ClientIdentity, secure_client
-from tanklab.users import load_credentials
+from tanklab.ua_security import ClientIdentity, cli_identity, secure_client
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -316,16 +314,6 @@ def make_stack(
         host=host,
     )
     return Stack(site, urls, timeout, cli_identity())
-
-
-def cli_identity(environ: Mapping[str, str] | None = None) -> ClientIdentity:
-    """Who operator commands connect as: the ``cli`` certificate of the security home
-    (``TANKLAB_HOME``, default ``~/.config/tanklab``) and the login from ``TANKLAB_USER`` and
-    ``TANKLAB_PASSWORD`` or the home's 0600 credentials file (written by ``tankctl up``)."""
-    env = os.environ if environ is None else environ
-    root = Path(env["TANKLAB_HOME"]) if env.get("TANKLAB_HOME") else default_home()
-    home = SecurityHome(root)
-    return ClientIdentity(home, "cli", load_credentials(home.credentials_file, env))
 
 
 # --------------------------------------------------------------------------------------------

@@ -33,8 +33,7 @@ from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
 from tanklab.home import SecurityHome, default_home
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
 from tanklab.ua import Link
-from tanklab.ua_security import ClientIdentity, client_setup
-from tanklab.users import load_credentials
+from tanklab.ua_security import cli_identity, client_setup
 
 TIERS = ("plant", "plc", "supervisor")
 READY_TIMEOUT_S = 60.0
@@ -151,8 +150,9 @@ class Stack:
 
     def link(self, tier: str, tags: dict[str, Tag], name: str) -> Link:
         """A reconnecting client of ``tier`` as the CLI (the board and the start-up checks)."""
-        identity = ClientIdentity(self.home, "cli", load_credentials(self.home.credentials_file, os.environ))
-        return Link(self.tiers[tier].url, tags, name=name, setup=client_setup(identity), timeout_s=2.0)
+        return Link(
+            self.tiers[tier].url, tags, name=name, setup=client_setup(cli_identity(self.home)), timeout_s=2.0
+        )
 
     async def start(self) -> None:
         """Start the tiers bottom-up; each must answer a read before the next starts.

@@ -43,7 +43,7 @@ import logging
 import os
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -62,7 +62,7 @@ from cryptography import x509
 
 from tanklab.audit import AuditLog, AuditRecord
 from tanklab.errors import SecurityError
-from tanklab.home import SecurityHome
+from tanklab.home import SecurityHome, default_home
 from tanklab.pki import Pki
 from tanklab.tags import APPLICATION_URIS, NAMESPACE_URI, Role, Tag, tags_by_path
 from tanklab.ua import (
@@ -76,7 +76,7 @@ from tanklab.ua import (
     build_nodes,
     install_write_guard,
 )
-from tanklab.users import Credentials, Lockout, UsersFile
+from tanklab.users import Credentials, Lockout, UsersFile, load_credentials
 
 log = logging.getLogger(__name__)
 
@@ -610,6 +610,17 @@ async def secure_client(client: Client, identity: ClientIdentity) -> None:
     else:
         client.user_certificate = await uacrypto.load_certificate(str(cert))
         client.user_private_key = await uacrypto.load_private_key(str(key))
+
+
+def cli_identity(
+    home: SecurityHome | None = None, environ: Mapping[str, str] | None = None
+) -> ClientIdentity:
+    """Who the CLI (operator commands, the board) connects as: the ``cli`` certificate of
+    ``home`` (default: ``TANKLAB_HOME``, else ``~/.config/tanklab``) and the login from
+    ``TANKLAB_USER`` and ``TANKLAB_PASSWORD`` or the home's 0600 credentials file."""
+    env = os.environ if environ is None else environ
+    home = home or SecurityHome(default_home(env))
+    return ClientIdentity(home, "cli", load_credentials(home.credentials_file, env))
 
 
 def client_setup(identity: ClientIdentity) -> ClientSetup:
