@@ -161,6 +161,10 @@ def machine() -> dict[str, str]:
         info["memory"] = f"{int(mem) / 2**20:.1f} GiB"
     except (OSError, IndexError, ValueError):
         pass
+    from threadpoolctl import threadpool_info
+
+    pools = [f"{p['internal_api']} {p.get('version') or ''}: {p['num_threads']}" for p in threadpool_info()]
+    info["BLAS threads (tanklab.threads)"] = "; ".join(pools) or "no BLAS loaded"
     return info
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from benchmarks import accuracy, cosim, mpc, report, robustness, security, stack
 from benchmarks.common import ROOT, machine, versions
+from tanklab.threads import limit_blas_threads
 
 SECTIONS = ("mpc", "cosim", "stack", "robustness", "security")
 
@@ -101,6 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
     logging.getLogger("tanklab.ua").setLevel(logging.ERROR)
+    # as the tiers and `tankctl simulate` do (tanklab.threads): the comparators run on it too
+    limit_blas_threads()
 
     started = time.perf_counter()
     command = "python -m benchmarks.run" + (" --quick" if args.quick else "")

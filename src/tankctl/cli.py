@@ -27,6 +27,7 @@ from tankctl.tune_cli import app as tune_app
 from tanklab.config import SiteConfig, load_site, site_schema
 from tanklab.errors import TanklabError
 from tanklab.tags import render_markdown
+from tanklab.threads import limit_blas_threads
 
 if TYPE_CHECKING:
     from tanklab.ua_security import ServerSecurity
@@ -483,6 +484,7 @@ def up(
 
 def main() -> None:
     """Console-script entry point."""
+    limit_blas_threads()
     try:
         app()
     except KeyboardInterrupt:
