@@ -75,6 +75,9 @@ class Series:
     solver_s: list[float] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     status: Counter[str] = field(default_factory=Counter)
+    path: Counter[str] = field(default_factory=Counter)
+    """How the controller's steps were solved: ``previous`` (the previous active set),
+    ``corrections`` (active-set corrections) or ``osqp``."""
     du0: list[float] = field(default_factory=list)
     """|u0 - u0 of the controller| / input range, largest over the inputs."""
     detail: str = ""
@@ -104,6 +107,13 @@ class HorizonResult:
     input_range: float
     other_cores: float
     """Cores other work on the machine kept busy during the closed loop (:class:`CpuMeter`)."""
+
+
+def solve_path(res: MpcResult) -> str:
+    """``previous``, ``corrections`` or ``osqp``: how :class:`MpcController` found this step's plan."""
+    if res.iterations:
+        return "osqp"
+    return "corrections" if "found in" in res.osqp_status else "previous"
 
 
 def _setpoint_step(sim: CoSimulation) -> None:
@@ -164,6 +174,7 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
         s.solver_s.append(res.solve_time_s)
         s.iterations.append(res.iterations)
         s.status[res.status.name] += 1
+        s.path[solve_path(res)] += 1
         if alt is not None:
             t0 = time.perf_counter()
             res2 = alt.step(y, r, u_prev)

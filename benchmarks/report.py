@@ -90,14 +90,15 @@ def _median_note(res: HorizonResult) -> str:
     """Why a step median is what it is: OSQP's share and the iterations."""
     s = _ms(res.series[OURS].wall)
     o = _ms(res.series[OURS].solver)
-    iters = [int(i) for i in res.series[OURS].iterations]
-    skipped = sum(1 for i in iters if i == 0)
+    path = res.series[OURS].path
+    n = sum(path.values())
     return (
-        f"whole `step` call, closed loop, controller alone; on {skipped} of {len(iters)} samples the "
-        "previous step's active set passed the KKT check (one cached sparse triangular solve), so "
-        f"OSQP did not run (median OSQP time {fmt(o.median)} ms); the rest of the {fmt(s.median)} ms "
-        "is the filter, the QP vectors, that solve with its check, and the projection / prediction / "
-        "objective in Python"
+        f"whole `step` call, closed loop, controller alone; of {n} samples, {path['previous']} were "
+        "solved on the previous step's active set (one cached triangular solve passing the KKT check) "
+        f"and {path['corrections']} by active-set corrections (Schur-complement solves), OSQP ran on "
+        f"{path['osqp']} (median OSQP time {fmt(o.median)} ms); the rest of the {fmt(s.median)} ms "
+        "is the filter, the QP vectors, the exact solve with its check, and the projection / "
+        "prediction / objective in Python"
     )
 
 
@@ -123,16 +124,18 @@ def goals(rep: Report) -> list[Goal]:
                 "<= 3 ms",
                 f"{fmt(s.p99)} ms (OSQP alone {fmt(o.p99)} ms)",
                 s.p99 <= 3.0,
-                ""
+                (
+                    f"OSQP ran on {alone.series[OURS].path['osqp']} of {len(alone.series[OURS].iterations)} "
+                    f"samples (the cold start and the first samples of the setpoint step; iterations max "
+                    f"{fmt(iters.maximum)}); every other sample was an exact active-set solve, the slowest "
+                    "of them active-set corrections through about ten sets (docs/mpc.md)"
+                )
                 if s.p99 <= 3.0
                 else (
-                    "the tail is the setpoint-step transient, and it is OSQP's time: iterations p99 "
-                    f"{fmt(iters.p99)}, max {fmt(iters.maximum)} against a median of {fmt(iters.median)} "
-                    "(the rate-limited plan changes its active set every sample, so no cached solve "
-                    "applies; the flat QP converges slowly and the tolerance ladder goes on to 1e-5 and "
-                    "1e-6 whenever the polish at 1e-4 fails. Correcting the polish's active set instead "
-                    "(primal-dual active-set steps, measured) cycles on a quarter of these QPs and costs "
-                    "a sparse factorisation per correction, which made the p99 worse: docs/mpc.md)"
+                    "the tail is the setpoint-step transient: OSQP ran on "
+                    f"{alone.series[OURS].path['osqp']} samples (iterations p99 {fmt(iters.p99)}, max "
+                    f"{fmt(iters.maximum)}) where the active-set corrections did not certify an optimum "
+                    "within their limit (docs/mpc.md)"
                 ),
             )
         )
@@ -303,15 +306,17 @@ def _mpc_section(rep: Report) -> list[str]:
         "setpoint +0.05 m at 10 s); every supervisor cycle calls `MpcController.step` once. "
         "The solve (docs/mpc.md): first the previous step's active set, on a cached sparse LU of its "
         "KKT matrix, accepted when the solution passes the KKT check to 1e-9 (then OSQP does not "
-        "run); otherwise OSQP's tolerance ladder 1e-4 / 1e-5 / 1e-6 with polish, warm-started from "
-        "the previous solution shifted by one sample.",
+        "run); then primal-dual active-set corrections from that set shifted by one sample (at most "
+        "12 sets, each solved through a Schur complement on the last LU, same check); otherwise "
+        "OSQP's tolerance ladder 1e-4 / 1e-5 / 1e-6 with polish, warm-started from the previous "
+        "solution shifted by one sample.",
         "",
         "### 1a. The controller alone",
         "",
         "Closed loop with nothing else timed in the process. *step* = the whole `step(y, r, u_prev)` "
         "call (Kalman filter, QP vectors, the active-set solve or OSQP, projection, prediction, "
         "objective); *OSQP* = `MpcResult.solve_time_s` (OSQP's own update + solve + polish time over "
-        "the rungs; 0 when the previous active set was optimal); iterations 0 = OSQP not run.",
+        "the rungs; 0 when an exact active-set solve gave the optimum); iterations 0 = OSQP not run.",
         "",
     ]
     rows = []
@@ -331,6 +336,7 @@ def _mpc_section(rep: Report) -> list[str]:
                 fmt(o.median),
                 fmt(o.p99),
                 f"{fmt(it.median)} / {fmt(it.p99)}",
+                f"{s.path['previous']} / {s.path['corrections']} / {s.path['osqp']}",
                 _status(s),
                 _load(r.other_cores),
             ]
@@ -347,11 +353,12 @@ def _mpc_section(rep: Report) -> list[str]:
             "OSQP median [ms]",
             "OSQP p99 [ms]",
             "iterations median / p99",
+            "solved by previous set / corrections / OSQP",
             "status",
             "other load [cores]",
         ],
         rows,
-        "rlrrrrrrrllr",
+        "rlrrrrrrrlrlr",
     )
     lines += [
         "### 1b. Side by side on the same QPs",

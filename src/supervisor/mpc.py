@@ -84,9 +84,12 @@ Solver use
 ----------
 The OSQP problem is set up once in the constructor; ``step`` only updates q, l and u (and the
 tolerance settings, below) and warm-starts from the previous primal and dual solution shifted by
-one sample. Before that, ``step`` solves the QP on the previous step's active set with a cached
-sparse LU of its KKT matrix (:class:`_ActiveSetQp`) and, if the KKT conditions hold to
-``KKT_TOL``, takes that exact optimum without running OSQP (the usual case near a steady state).
+one sample. Before that, ``step`` looks for the exact optimum by active sets
+(:class:`_ActiveSetQp`): the previous step's active set (the usual case near a steady state: one
+triangular solve on a cached sparse LU), then primal-dual active-set corrections from that set
+shifted by one sample (a rate-limited transient: the plan's active rate bounds move about one
+sample per step), each set solved through a Schur complement on the last LU. A set whose
+solution passes the KKT check to ``KKT_TOL`` gives the optimum, and OSQP does not run.
 ``update_model`` replaces A and B (and optionally the operating point) through OSQP's
 matrix-value update on a fixed sparsity pattern (every structurally possible entry is stored).
 
@@ -106,7 +109,7 @@ applied move and every returned plan is projected onto u_min <= u <= u_max and t
 (relative to the applied u(-1); a u(-1) outside the input box is first clipped to where the rate
 window meets it, the physical bounds win), so bounds hold exactly even at solver tolerance and on
 the held path; NaN is never returned. Solve time is OSQP's own update + solve + polish time summed
-over the rungs of the step [s] (0 when the previous active set was optimal); OSQP's adaptive rho
+over the rungs of the step [s] (0 when an active set gave the optimum); OSQP's adaptive rho
 runs on an iteration count, so results are deterministic.
 
 The module is pure: no clock, no I/O, no logging.
@@ -126,6 +129,7 @@ import osqp
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import lapack
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from supervisor.estimator import AugmentedKalmanFilter
@@ -243,6 +247,20 @@ KKT_TOL = 1e-9
 #: Factorisations kept, keyed by the active set (a steady state or a ramp revisits a few sets).
 _KKT_CACHE = 8
 
+#: Active sets that differ from the last sparse LU in at most this many rows are solved through a
+#: Schur complement on that LU instead of a new factorisation (a transient moves a few rows per
+#: step; measured in docs/mpc.md).
+_SCHUR_MAX_ROWS = 48
+
+#: Distinct rows bordered onto one LU before a new LU is made (the memory of its border columns).
+_BORDER_ROWS = 4 * _SCHUR_MAX_ROWS
+
+#: A bordered matrix whose smallest LU pivot is below this fraction of its largest is singular.
+_SCHUR_PIVOT_MIN = 1e-13
+
+#: Active sets tried per step by the primal-dual active-set corrections before OSQP runs.
+PDAS_MAX_SETS = 12
+
 
 def _absmax(a: FloatArray) -> float:
     return float(np.abs(a).max()) if a.size else 0.0
@@ -254,8 +272,143 @@ class _KktSolution:
 
     x: FloatArray
     y: FloatArray
+    z: FloatArray
+    """A x."""
     certified: bool
     """Primal feasible, stationary and with multipliers of the right signs: the optimum."""
+
+
+class _LuFactor:
+    """Sparse LU of the KKT matrix of one active set (rows ``idx``), in the band order.
+
+    Also keeps, per row bordered onto it by a :class:`_SchurFactor`, the border column c and
+    K^-1 c: a transient borders mostly the same rows step after step, so each is solved once.
+    """
+
+    def __init__(
+        self, act: BoolArray, lu: spla.SuperLU, idx: NDArray[np.int64], pos: NDArray[np.int64], nv: int
+    ) -> None:
+        self.act = act
+        self.idx = idx
+        self.lu = lu
+        self.pos = pos
+        self.pos_v = pos[:nv]
+        self.pos_w = pos[nv:]
+        self.border_col: dict[int, int] = {}
+        """Row of :attr:`c_rows` / :attr:`z_rows` holding a bordered constraint row's c' / (K^-1 c)'."""
+        self.c_rows = np.zeros((_BORDER_ROWS, pos.size))
+        self.z_rows = np.zeros((_BORDER_ROWS, pos.size))
+
+    def solve(self, q: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """v, y_W with P v + A_W' y_W = -q and A_W v = b."""
+        rhs = np.empty(self.pos.size)
+        rhs[self.pos_v] = -q
+        rhs[self.pos_w] = b
+        sol = self.lu.solve(rhs)
+        return sol[self.pos_v], sol[self.pos_w]
+
+
+class _SchurFactor:
+    r"""The KKT system of an active set W solved on the LU of a nearby set W0 (bordered system).
+
+    With K0 the KKT matrix of W0 (unknowns s = [v; y_W0]), each row i added (in W, not in W0)
+    borders K0 with the column [a_i'; 0] and the equation a_i v = b_i (its multiplier is the
+    border unknown t_i); each row j dropped (in W0, not in W) borders it with the unit column
+    e_{y_j} and the equation y_j = 0 (t_j then takes up row j's equation, which no longer
+    binds)::
+
+        [ K0  C ] [ s ]   [ r0 ]
+        [ C'  0 ] [ t ] = [ r1 ]   =>   (C' K0^-1 C) t = C' K0^-1 r0 - r1,   s = K0^-1 (r0 - C t)
+
+    Z = K0^-1 C and the LU of the small dense M = C' Z are computed once per set (Z's columns once
+    per row and base, :class:`_LuFactor`).
+    """
+
+    def __init__(
+        self,
+        act: BoolArray,
+        base: _LuFactor,
+        idx: NDArray[np.int64],
+        keep_t: NDArray[np.int64],
+        keep_0: NDArray[np.int64],
+        add_t: NDArray[np.int64],
+        Ct: FloatArray,
+        Zt: FloatArray,
+        M_lu: tuple[FloatArray, NDArray[np.int32]],
+        n_add: int,
+    ) -> None:
+        self.act = act
+        self.idx = idx
+        self._base = base
+        self._keep_t = keep_t
+        self._pos_keep = base.pos_w[keep_0]
+        self._add_t = add_t
+        self._Ct = Ct
+        self._Zt = Zt
+        self._M_lu = M_lu
+        self._r1 = np.zeros(Ct.shape[0])
+        self._n_add = n_add
+
+    def solve(self, q: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """v, y_W with P v + A_W' y_W = -q and A_W v = b."""
+        base = self._base
+        r0 = np.zeros(base.pos.size)
+        r0[base.pos_v] = -q
+        r0[self._pos_keep] = b[self._keep_t]
+        s = base.lu.solve(r0)
+        r1 = self._r1
+        r1[: self._n_add] = b[self._add_t]
+        t, _ = lapack.dgetrs(*self._M_lu, self._Ct @ s - r1)
+        s -= t @ self._Zt
+        y = np.empty(self.idx.size)
+        y[self._keep_t] = s[self._pos_keep]
+        y[self._add_t] = t[: self._n_add]
+        return s[base.pos_v], y
+
+
+@dataclass
+class _Correction:
+    """The outcome of :meth:`_ActiveSetQp.correct`."""
+
+    solution: _KktSolution | None
+    """The certified optimum, or None if none of the sets tried was optimal."""
+    lower: BoolArray
+    upper: BoolArray
+    sets: int
+    """Active sets solved."""
+
+
+def _pdas_step(
+    sol: _KktSolution,
+    lower: BoolArray,
+    upper: BoolArray,
+    lo: FloatArray,
+    up: FloatArray,
+    eq: BoolArray,
+    single: bool,
+) -> tuple[BoolArray, BoolArray]:
+    """The next active set after ``sol`` (see :meth:`_ActiveSetQp.correct`)."""
+    y, z = sol.y, sol.z
+    free = ~(lower | upper)
+    below = np.where(free, lo - z, 0.0)  # > 0: violated lower bound
+    above = np.where(free, z - up, 0.0)
+    wrong_l = np.where(lower & ~eq, y, 0.0)  # > 0: wrong sign on an active lower bound
+    wrong_u = np.where(upper & ~eq, -y, 0.0)
+    if not single:
+        add_l, add_u = below > KKT_TOL, above > KKT_TOL
+        new_lower = (lower & ~(wrong_l > KKT_TOL)) | add_l
+        new_upper = ((upper & ~(wrong_u > KKT_TOL)) | add_u) & ~new_lower
+        return new_lower, new_upper
+    lower, upper = lower.copy(), upper.copy()
+    worst = np.maximum(below, above)
+    i = int(np.argmax(worst))
+    if worst[i] > KKT_TOL:
+        (lower if below[i] >= above[i] else upper)[i] = True
+        return lower, upper
+    wrong = np.maximum(wrong_l, wrong_u)
+    i = int(np.argmax(wrong))
+    lower[i] = upper[i] = False
+    return lower, upper
 
 
 class _ActiveSetQp:
@@ -272,16 +425,22 @@ class _ActiveSetQp:
     multipliers have the right signs (sufficient for a convex QP): :meth:`solve` checks both to
     ``KKT_TOL`` together with stationarity. Factorisations are sparse LU (SuperLU) of the KKT
     matrix in a reverse Cuthill-McKee order computed once (the QP is a chain of stages, so the
-    order is a band), cached per active set: only ``q`` and ``b`` change between steps, so a step
-    that keeps the active set of the previous one costs one triangular solve.
+    order is a band); a set within ``_SCHUR_MAX_ROWS`` rows of the last LU is solved on that LU
+    through a Schur complement (:class:`_SchurFactor`) instead. Both are cached per active set:
+    only ``q`` and ``b`` change between steps, so a step that keeps the active set of the previous
+    one costs one triangular solve.
+
+    :meth:`correct` searches for the optimal set from a guess by primal-dual active-set steps
+    (Hintermueller, Ito and Kunisch 2002): drop the active rows whose multipliers have the wrong
+    sign, add the inactive rows that the solution violates, repeat; it stops at the optimum, at
+    a set seen before (a cycle), at a singular set, or after a given number of sets.
     """
 
     def __init__(self, P_upper: sp.csc_matrix, A: sp.csc_matrix) -> None:
         self._nv = A.shape[1]
         self._nc = A.shape[0]
-        self._cache: OrderedDict[bytes, tuple[object, NDArray[np.int64], NDArray[np.int64]] | None] = (
-            OrderedDict()
-        )
+        self._cache: OrderedDict[bytes, _LuFactor | _SchurFactor | None] = OrderedDict()
+        self._base: _LuFactor | None = None
         self.set_values(P_upper, A)
         P_full = self._P
         pattern = sp.bmat(
@@ -303,9 +462,10 @@ class _ActiveSetQp:
         # [[P, A'], [A, 0]] [x; y] = [P x + A' y; A x]: every residual in one product
         self._K = sp.bmat([[self._P, A.T], [A, None]], format="csr")
         self._cache.clear()
+        self._base = None
 
-    def _factor(self, act: BoolArray) -> tuple[object, NDArray[np.int64], NDArray[np.int64]] | None:
-        """LU of the reduced KKT matrix (None if singular), the active rows, the positions.
+    def _lu(self, act: BoolArray) -> _LuFactor | None:
+        """LU of the reduced KKT matrix of ``act`` (None if singular).
 
         Unknowns are [v; y_W]. ``pos`` gives each one's place in the band order restricted to
         the active rows: ``pos[:nv]`` for v, ``pos[nv:]`` for the active rows' multipliers.
@@ -331,44 +491,88 @@ class _ActiveSetQp:
             lu = spla.splu(K, permc_spec="NATURAL")  # already in band order
         except RuntimeError:  # exactly singular: dependent active rows
             return None
-        return lu, idx, pos
+        return _LuFactor(act, lu, idx, pos, nv)
+
+    def _schur(self, base: _LuFactor, act: BoolArray) -> _SchurFactor | _LuFactor | None:
+        """The KKT system of ``act`` bordered onto ``base`` (None if singular); a new LU once the
+        base has bordered ``_BORDER_ROWS`` distinct rows."""
+        idx = np.flatnonzero(act)
+        added = np.flatnonzero(act & ~base.act)
+        dropped = np.flatnonzero(base.act & ~act)
+        border = np.concatenate([added, dropped]).tolist()
+        new = [r for r in border if r not in base.border_col]
+        first = len(base.border_col)
+        if first + len(new) > _BORDER_ROWS:
+            return self._lu(act)  # this base has served its transient: a new one
+        if new:
+            C_new = base.c_rows[first : first + len(new)]  # view, zeros
+            A = self._A
+            for k, r in enumerate(new):
+                if base.act[r]:  # a dropped row: y_r = 0
+                    C_new[k, base.pos_w[np.searchsorted(base.idx, r)]] = 1.0
+                else:  # an added row: a_r v = b_r
+                    lo, hi = A.indptr[r], A.indptr[r + 1]
+                    C_new[k, base.pos_v[A.indices[lo:hi]]] = A.data[lo:hi]
+                base.border_col[r] = first + k
+            base.z_rows[first : first + len(new)] = base.lu.solve(C_new.T).T
+        cols = [base.border_col[r] for r in border]
+        Ct, Zt = base.c_rows[cols], base.z_rows[cols]
+        lu, piv, info = lapack.dgetrf(Ct @ Zt.T)
+        d = np.abs(np.diag(lu))
+        if info != 0 or d.min() <= _SCHUR_PIVOT_MIN * d.max():
+            return None  # (numerically) singular: dependent rows in the new set
+        in_base = base.act[idx]
+        keep_t = np.flatnonzero(in_base)
+        keep_0 = np.searchsorted(base.idx, idx[keep_t])
+        add_t = np.flatnonzero(~in_base)
+        return _SchurFactor(act, base, idx, keep_t, keep_0, add_t, Ct, Zt, (lu, piv), added.size)
+
+    def _factor(self, act: BoolArray) -> _LuFactor | _SchurFactor | None:
+        """The cached factorisation of ``act``, else a Schur complement on the last LU if it is
+        near, else a new LU (which becomes the base for the next sets)."""
+        key = act.tobytes()
+        if key in self._cache:
+            self._cache.move_to_end(key)
+            return self._cache[key]
+        base = self._base
+        entry: _LuFactor | _SchurFactor | None
+        moved = -1 if base is None else int(np.count_nonzero(act != base.act))
+        if moved == 0:
+            entry = base  # the base itself, evicted from the cache since
+        elif 0 < moved <= _SCHUR_MAX_ROWS:
+            entry = self._schur(base, act)  # type: ignore[arg-type]
+            if isinstance(entry, _LuFactor):
+                self._base = entry
+        else:
+            entry = self._lu(act)
+            if entry is not None:
+                self._base = entry
+        self._cache[key] = entry
+        if len(self._cache) > _KKT_CACHE:
+            self._cache.popitem(last=False)
+        return entry
 
     def solve(
         self, q: FloatArray, lo: FloatArray, up: FloatArray, lower: BoolArray, upper: BoolArray
     ) -> _KktSolution | None:
         """The KKT solution on W = lower | upper, checked; None if the KKT matrix is singular."""
         act = lower | upper
-        key = act.tobytes()
-        if key in self._cache:
-            entry = self._cache[key]
-            self._cache.move_to_end(key)
-        else:
-            entry = self._factor(act)
-            self._cache[key] = entry
-            if len(self._cache) > _KKT_CACHE:
-                self._cache.popitem(last=False)
-        if entry is None:
+        factor = self._factor(act)
+        if factor is None:
             return None
-        lu, idx, pos = entry
         nv = self._nv
+        idx = factor.idx
         b = np.where(lower[idx], lo[idx], up[idx])
-        rhs = np.empty(pos.size)
-        rhs[pos[:nv]] = -q
-        rhs[pos[nv:]] = b
-        sol = lu.solve(rhs)  # type: ignore[attr-defined]
         xy = np.zeros(nv + self._nc)
-        xy[:nv] = sol[pos[:nv]]
-        xy[nv + idx] = sol[pos[nv:]]
+        xy[:nv], xy[nv + idx] = factor.solve(q, b)
         Kxy = self._K @ xy
         r_dual = Kxy[:nv] + q
         r_act = b - Kxy[nv + idx]
         if _absmax(r_dual) > KKT_TOL or _absmax(r_act) > KKT_TOL:
             # one step of iterative refinement with the same factors (ill-conditioned flat QPs)
-            rhs[pos[:nv]] = -r_dual
-            rhs[pos[nv:]] = r_act
-            d = lu.solve(rhs)  # type: ignore[attr-defined]
-            xy[:nv] += d[pos[:nv]]
-            xy[nv + idx] += d[pos[nv:]]
+            dv, dy = factor.solve(r_dual, r_act)
+            xy[:nv] += dv
+            xy[nv + idx] += dy
             Kxy = self._K @ xy
             r_dual = Kxy[:nv] + q
             r_act = b - Kxy[nv + idx]
@@ -382,7 +586,41 @@ class _ActiveSetQp:
             (free & ((z < lo - KKT_TOL) | (z > up + KKT_TOL))).any()
             or (((lower & (y > KKT_TOL)) | (upper & (y < -KKT_TOL))) & ~eq).any()
         )
-        return _KktSolution(x, y, certified)
+        return _KktSolution(x, y, z, certified)
+
+    def correct(
+        self, q: FloatArray, lo: FloatArray, up: FloatArray, lower: BoolArray, upper: BoolArray, max_sets: int
+    ) -> _Correction:
+        """Primal-dual active-set steps from the guess (lower, upper), at most ``max_sets`` sets.
+
+        Each step drops every active row with a wrong-signed multiplier and adds every violated
+        inactive row. If that leads back to a set seen before, or to a singular one (added rows
+        that depend on active ones, e.g. a rate row between two active input bounds), the search
+        goes on one change at a time from the last solved set: add the most violated row, or if
+        none is violated drop the row with the most wrong-signed multiplier.
+        """
+        eq = lo == up
+        seen: set[bytes] = set()
+        sets = 0
+        last: tuple[_KktSolution, BoolArray, BoolArray] | None = None
+        single = False
+        while sets < max_sets:
+            key = lower.tobytes() + upper.tobytes()
+            sol = None
+            if key not in seen:
+                seen.add(key)
+                sol = self.solve(q, lo, up, lower, upper)
+                sets += 1
+                if sol is not None and sol.certified:
+                    return _Correction(sol, lower, upper, sets)
+            if sol is None:  # a cycle or a singular set: one change at a time from the last one
+                if last is None or single:
+                    break
+                single = True
+                sol, lower, upper = last
+            last = (sol, lower, upper)
+            lower, upper = _pdas_step(sol, lower, upper, lo, up, eq, single)
+        return _Correction(None, lower, upper, sets)
 
     def guess(
         self, lo: FloatArray, up: FloatArray, x: FloatArray, y: FloatArray
@@ -655,7 +893,8 @@ class _OsqpOutcome:
     last_y: FloatArray | None = None
     kkt_solves: int = 0
     active: tuple[BoolArray, BoolArray] | None = None
-    """The active set (lower, upper) of an exact solution (certified or OSQP-polished)."""
+    """The active set (lower, upper) of the accepted solution: exact when certified or polished,
+    OSQP's guess otherwise; the next step's first candidate."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1085,7 +1324,6 @@ class MpcController:
     def _reset_runtime_state(self) -> None:
         self._plan: FloatArray | None = None
         self._active: tuple[BoolArray, BoolArray] | None = None
-        self._active_repeated = False
         self._ws_x: FloatArray | None = None
         self._ws_y: FloatArray | None = None
         self._failures = 0
@@ -1169,12 +1407,12 @@ class MpcController:
     def _solve_qp(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> _OsqpOutcome:
         """Solve the scaled QP; return the accepted solution (scaled QP variables).
 
-        1. With ``polish``, the active set of the previous step's exact solution is tried first
-           (:class:`_ActiveSetQp`; its factorisation is cached): if the solution on it passes
-           the KKT check, it is the optimum and OSQP does not run. Near a steady state, and
-           whenever the active set did not change, this is the whole step. A set is tried once
-           its factorisation is cached or it was the same two steps in a row (a transient changes
-           the set every step, and a new factorisation costs about two OSQP solves).
+        1. With ``polish``, exact solves on active sets first (:class:`_ActiveSetQp`): the
+           previous step's set, then primal-dual active-set corrections from that set shifted by
+           one sample (the plan's constraints move one sample closer each step), at most
+           ``PDAS_MAX_SETS`` sets. A set that passes the KKT check gives the optimum to
+           ``KKT_TOL`` and OSQP does not run. Near a steady state this is one triangular solve;
+           in a rate-limited transient, a few Schur-complement solves on a cached LU.
         2. Otherwise the tolerance ladder: each rung solves to eps_abs = eps_rel = its tolerance
            with polishing, continuing the ADMM iterations of the previous rung (OSQP keeps its
            iterate between ``solve`` calls), warm-started from the previous solution shifted by
@@ -1187,14 +1425,21 @@ class MpcController:
         OSQP reports "solved inaccurate" at a rung whose 10 x tolerance is tighter still.
         """
         out = _OsqpOutcome()
-        polish = self._config.polish
         cand = self._active
-        if polish and cand is not None and (self._active_repeated or self._kkt.cached(*cand)):
+        if self._config.polish and cand is not None:
             sol = self._kkt.solve(q, lo, up, *cand)
             out.kkt_solves += 1
             if sol is not None and sol.certified:
                 out.status = "skipped: the previous active set is optimal"
                 out.x, out.y, out.accurate, out.active = sol.x, sol.y, True, cand
+                return out
+            shift = self._shift_y
+            fix = self._kkt.correct(q, lo, up, cand[0][shift], cand[1][shift], PDAS_MAX_SETS)
+            out.kkt_solves += fix.sets
+            if fix.solution is not None:
+                out.status = f"skipped: optimal active set found in {fix.sets} exact solves"
+                out.x, out.y, out.accurate = fix.solution.x, fix.solution.y, True
+                out.active = (fix.lower, fix.upper)
                 return out
         self._solver.update(q=q, l=lo, u=up)
         if self._ws_x is None or self._ws_y is None:
@@ -1226,8 +1471,6 @@ class MpcController:
                 polished = int(info.status_polish) == 1
                 done = polished or rung == len(ladder) - 1
                 out.x, out.y, out.accurate = x, y, done
-                if polished:
-                    out.active = self._kkt.guess(lo, up, x, y)
                 held_eps = eps
                 if done:
                     break
@@ -1236,20 +1479,15 @@ class MpcController:
             if status_val == _OSQP_SOLVED_INACCURATE and finite and 10.0 * eps < held_eps:
                 out.x, out.y, out.accurate = x, y, False
             break
+        if out.x is not None and out.y is not None:
+            # the next step's first candidate (exact when polished, OSQP's guess otherwise)
+            out.active = self._kkt.guess(lo, up, out.x, out.y)
         return out
 
     def _solve(self, dx0: FloatArray, eta: FloatArray, r_abs: FloatArray, u_prev: FloatArray) -> MpcResult:
         q, lo, up = self._qp_vectors(dx0, eta, r_abs, u_prev)
         out = self._solve_qp(q, lo, up)
-        prev, self._active = self._active, out.active
-        self._active_repeated = prev is not None and (
-            prev is out.active
-            or (
-                out.active is not None
-                and np.array_equal(prev[0], out.active[0])
-                and np.array_equal(prev[1], out.active[1])
-            )
-        )
+        self._active = out.active
         sol_x, sol_y = out.x, out.y
         model = self._model
         N, m = self._N, self._m

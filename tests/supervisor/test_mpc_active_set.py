@@ -1,16 +1,23 @@
-"""The MPC's exact solve on the previous step's active set (supervisor.mpc._ActiveSetQp).
+"""The MPC's exact solves on active sets (supervisor.mpc._ActiveSetQp).
 
 Oracles: a one-variable QP solved by hand (the KKT check must accept the right active set and
-refuse the wrong ones), and the controller's own OSQP-polished solution of the same QP (the
-certified solution must equal it, and skip OSQP).
+refuse the wrong ones); dense KKT solves by numpy (the Schur-complement solves on a nearby LU must
+equal them); cvxpy + CLARABEL on random strictly convex QPs (the primal-dual active-set
+corrections, when they certify a point, must have found its optimum); and the controller's own
+OSQP-polished solution of the same QP (the certified solution must equal it, and skip OSQP).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from supervisor.mpc import KKT_TOL, MpcConfig, MpcController, MpcModel, _ActiveSetQp
+from supervisor.mpc import KKT_TOL, MpcConfig, MpcController, MpcModel, _ActiveSetQp, _LuFactor, _SchurFactor
 from tanklab.enums import MpcStatus
 
 
@@ -61,16 +68,15 @@ def test_a_repeated_qp_is_solved_exactly_without_osqp() -> None:
     x = np.array([0.41, 0.19, 0.3])
     r = np.array([0.45, 0.2])
     u_prev = np.array([5e-5, 3e-5])
-    first = ctrl.plan(x, r, u_prev)
-    second = ctrl.plan(x, r, u_prev)  # same active set twice in a row: the candidate for the next
-    third = ctrl.plan(x, r, u_prev)
-    assert first.iterations > 0 and second.iterations > 0
-    assert third.iterations == 0 and third.solve_time_s == 0.0
-    assert third.osqp_status.startswith("skipped")
-    assert third.status == MpcStatus.SOLVED
+    first = ctrl.plan(x, r, u_prev)  # OSQP, polished: its active set is the next candidate
+    second = ctrl.plan(x, r, u_prev)
+    assert first.iterations > 0
+    assert second.iterations == 0 and second.solve_time_s == 0.0
+    assert second.osqp_status.startswith("skipped")
+    assert second.status == MpcStatus.SOLVED
     # the same optimum as OSQP's polished one (polish = exact on the same active set)
-    assert np.max(np.abs(third.planned_u - second.planned_u)) <= 1e-9 * 1.2e-4
-    assert abs(third.objective - second.objective) <= 1e-9 * abs(second.objective)
+    assert np.max(np.abs(second.planned_u - first.planned_u)) <= 1e-9 * 1.2e-4
+    assert abs(second.objective - first.objective) <= 1e-9 * abs(first.objective)
 
 
 def test_a_changed_qp_falls_back_to_osqp_and_stays_within_bounds() -> None:
@@ -97,3 +103,125 @@ def test_model_update_drops_cached_factorisations() -> None:
     a, b = ctrl.plan(x, r, u_prev), fresh.plan(x, r, u_prev)
     assert np.max(np.abs(a.u - b.u)) <= 1e-6 * 1.2e-4
     assert KKT_TOL <= 1e-6 * 1e-2  # the certificate is far tighter than the last ladder rung
+
+
+# --- Schur-complement solves and primal-dual active-set corrections on random QPs ---------------
+def _random_qp(seed: int, n: int = 8, rows: int = 14) -> tuple[sp.csc_matrix, sp.csc_matrix, np.ndarray]:
+    """A strictly convex QP: P = G'G + I, A = [I; random sparse rows] (bounds and general rows)."""
+    rng = np.random.default_rng(seed)
+    G = rng.normal(size=(n, n))
+    P = G.T @ G + np.eye(n)
+    extra = rng.normal(size=(rows - n, n)) * (rng.random((rows - n, n)) < 0.4)
+    A = np.vstack([np.eye(n), extra])
+    return sp.csc_matrix(np.triu(P)), sp.csc_matrix(A), rng.normal(size=n) * 3.0
+
+
+def _dense_kkt(
+    P_upper: sp.csc_matrix, A: sp.csc_matrix, q: np.ndarray, b: np.ndarray, rows: np.ndarray
+) -> np.ndarray:
+    P = P_upper.toarray()
+    P = P + np.triu(P, 1).T
+    Aw = A.toarray()[rows]
+    K = np.block([[P, Aw.T], [Aw, np.zeros((rows.size, rows.size))]])
+    return np.linalg.solve(K, np.concatenate([-q, b]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 6))
+def test_schur_solves_equal_a_dense_kkt_solve(seed: int, moves: int) -> None:
+    """Sets near the last LU are solved on it (rows added and dropped) exactly as a fresh solve."""
+    P, A, q = _random_qp(seed)
+    qp = _ActiveSetQp(P, A)
+    rng = np.random.default_rng(seed + 1)
+    nc = A.shape[0]
+    base = rng.random(nc) < 0.3
+    lo, up = -np.ones(nc), np.ones(nc)
+    none = np.zeros(nc, dtype=bool)
+    if not isinstance(qp._factor(base), _LuFactor):  # the first set becomes the LU
+        return  # a singular random base: nothing to border onto
+    target = base.copy()
+    flip = rng.choice(nc, size=moves, replace=False)
+    target[flip] = ~target[flip]
+    factor = qp._factor(target)
+    assert factor is None or isinstance(factor, _SchurFactor)
+    rows = np.flatnonzero(target)
+    if np.linalg.matrix_rank(A.toarray()[rows]) < rows.size:  # dependent rows: no solution claimed
+        assert factor is None or qp.solve(q, lo, up, none, target) is None
+        return
+    assert factor is not None
+    b = rng.normal(size=rows.size)
+    v, y = factor.solve(q, b)
+    ref = _dense_kkt(P, A, q, b, rows)
+    assert np.max(np.abs(np.concatenate([v, y]) - ref)) <= 1e-9 * max(1.0, np.max(np.abs(ref)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10_000))
+def test_corrections_that_certify_find_the_optimum(seed: int) -> None:
+    """From a random guess, a certified answer of the corrections is CLARABEL's optimum."""
+    P, A, q = _random_qp(seed)
+    n, nc = A.shape[1], A.shape[0]
+    rng = np.random.default_rng(seed + 2)
+    lo = -rng.random(nc) - 0.1
+    up = rng.random(nc) + 0.1
+    qp = _ActiveSetQp(P, A)
+    guess_l = rng.random(nc) < 0.15
+    guess_u = (rng.random(nc) < 0.15) & ~guess_l
+    fix = qp.correct(q, lo, up, guess_l, guess_u, max_sets=3 * nc)
+    v = cp.Variable(n)
+    Pd = P.toarray()
+    Pd = Pd + np.triu(Pd, 1).T
+    Ad = A.toarray()
+    objective = cp.Minimize(0.5 * cp.quad_form(v, cp.psd_wrap(Pd)) + q @ v)
+    prob = cp.Problem(objective, [Ad @ v >= lo, Ad @ v <= up])
+    prob.solve(solver="CLARABEL", tol_feas=1e-12, tol_gap_abs=1e-12, tol_gap_rel=1e-12)
+    assert prob.status == "optimal"
+    if fix.solution is None:
+        return  # no claim: the controller then runs OSQP
+    assert fix.solution.certified and 1 <= fix.sets <= 3 * nc
+    assert np.max(np.abs(fix.solution.x - v.value)) <= 1e-6
+    z = A @ fix.solution.x
+    assert np.all(z >= lo - KKT_TOL) and np.all(z <= up + KKT_TOL)
+    at_bound = (np.abs(z - lo) <= 1e-8) | (np.abs(z - up) <= 1e-8)
+    assert np.all(at_bound[fix.lower | fix.upper])  # the certified set's rows hold with equality
+
+
+def test_corrections_converge_on_most_random_qps() -> None:
+    """The corrections are a solver, not a lucky guess: from the empty set they certify the
+    optimum of most random QPs (measured: 40 of these 50; plain primal-dual active-set steps are
+    not globally convergent, the controller starts from far better guesses and has OSQP behind)."""
+    found = 0
+    for seed in range(50):
+        P, A, q = _random_qp(seed)
+        nc = A.shape[0]
+        rng = np.random.default_rng(seed + 2)
+        lo, up = -rng.random(nc) - 0.1, rng.random(nc) + 0.1
+        none = np.zeros(nc, dtype=bool)
+        fix = _ActiveSetQp(P, A).correct(q, lo, up, none, none, max_sets=3 * nc)
+        found += fix.solution is not None
+    assert found >= 38
+
+
+def test_a_transient_is_solved_by_corrections_and_matches_osqp() -> None:
+    """A new setpoint moves the rate-limited plan's active set every sample; the corrections from
+    the previous set shifted by one sample find each new optimum, which OSQP at its tightest
+    polished tolerance confirms."""
+    ctrl = _controller()
+    check = MpcController(ctrl.model, replace(ctrl.config, polish=True, tolerances=(1e-8,), max_iter=200_000))
+    x = np.array([0.41, 0.19, 0.3])
+    u_prev = np.array([5e-5, 3e-5])
+    model = ctrl.model
+    corrected = 0
+    for k in range(30):
+        r = np.array([0.45, 0.2]) if k < 3 else np.array([0.5, 0.17])
+        res = ctrl.plan(x, r, u_prev)
+        assert res.status == MpcStatus.SOLVED
+        if "found in" in res.osqp_status:
+            corrected += 1
+            check._reset_runtime_state()
+            ref = check.plan(x, r, u_prev)
+            assert ref.iterations > 0
+            assert np.max(np.abs(res.planned_u - ref.planned_u)) <= 1e-6 * 1.2e-4
+        x = model.x_op + model.A @ (x - model.x_op) + model.B @ (res.u - model.u_op)
+        u_prev = res.u
+    assert corrected >= 10
