@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from plant_sim.plant import PlantSimulator
 from plc_emulator.program import GainStatus, PlcProgram, ScanInputs
 from supervisor.cycle import PlcSnapshot, SupervisorCore
-from tanklab.config import SiteConfig
+from tanklab.config import PidGainsSpec, SiteConfig
 from tanklab.enums import LoopMode, SupervisorMode
 
 FloatArray = NDArray[np.float64]
@@ -49,6 +49,34 @@ class Trace:
     def array(self, name: str) -> FloatArray:
         """One recorded quantity as an array (scans x items)."""
         return np.asarray(getattr(self, name), dtype=float)
+
+
+def _setpoint_row(sps: tuple[float, ...]) -> FloatArray:
+    return np.array(sps)
+
+
+def _gain_rows(applied: tuple[PidGainsSpec | None, ...]) -> FloatArray:
+    return np.array([[g.kp, g.ki, g.kd] if g else [0.0, 0.0, 0.0] for g in applied])
+
+
+def _mode_row(modes: tuple[LoopMode, ...]) -> FloatArray:
+    return np.array([int(m) for m in modes], dtype=float)
+
+
+class _LastRows:
+    """The trace row of each rarely changing quantity, rebuilt only when its value changes."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, tuple[tuple[Any, ...], FloatArray]] = {}
+
+    def get(self, name: str, key: tuple[Any, ...], build: Callable[[Any], FloatArray]) -> FloatArray:
+        last = self._last.get(name)
+        if last is not None and last[0] == key:
+            return last[1]
+        row = build(key)
+        row.flags.writeable = False  # shared by consecutive scans of the trace
+        self._last[name] = (key, row)
+        return row
 
 
 class CoSimulation:
@@ -95,6 +123,11 @@ class CoSimulation:
         self.plc = PlcProgram(site)
         self.ts_s = self.plc.ts_s
         self.trace = Trace()
+        self._rows = _LastRows()
+        n_tanks = self.plant.net.n_tanks
+        self._good = {ok: np.full(n_tanks, ok) for ok in (False, True)}  # the transmitters' quality
+        for flags in self._good.values():
+            flags.flags.writeable = False
         self.io_healthy = True
         self.supervisor: SupervisorCore | None = None
         self.supervisor_alive = True
@@ -113,17 +146,20 @@ class CoSimulation:
 
     def step(self) -> None:
         """One scan: read the transmitters, scan, command the pumps, advance the plant by Ts."""
-        readings = self.plant.readings
-        good = np.full(len(readings), self.io_healthy)
+        # one read-only copy of the readings: the scan's input and the trace's row
+        readings = self.plant.readings.copy()
+        readings.flags.writeable = False
         out = self.plc.scan(
-            ScanInputs(self.plant.t_s, readings.copy(), good, self.io_healthy),
+            ScanInputs(self.plant.t_s, readings, self._good[self.io_healthy], self.io_healthy),
             publish=self.supervisor is not None,  # only the supervisor reads the PLC's nodes
         )
+        commands = out.commands  # the scan's own copy: the trace keeps it, read-only
+        commands.flags.writeable = False
         if self.io_healthy:
             net = self.plant.net
             # np.minimum / np.maximum: np.clip's result at a third of its call overhead
-            self.plant.set_commands(np.minimum(np.maximum(out.commands, net.pump_cmd_min), net.pump_cmd_max))
-        self._record(out.commands)
+            self.plant.set_commands(np.minimum(np.maximum(commands, net.pump_cmd_min), net.pump_cmd_max))
+        self._record(commands, readings)
         self._supervise(out.values)
         self.plant.advance(self.ts_s)
 
@@ -150,20 +186,19 @@ class CoSimulation:
             self.plc.heartbeat(self.heartbeat)
         self.trace.mpc_solve_s.append(solve)
 
-    def _record(self, commands: FloatArray) -> None:
+    def _record(self, commands: FloatArray, readings: FloatArray) -> None:
         tr = self.trace
         plant = self.plant
         loops = self.plc.loops
         tr.t_s.append(plant.t_s)
         tr.levels_m.append(plant.x[: plant.net.n_tanks].copy())  # plant.levels, one call less
-        tr.readings_m.append(plant.readings.copy())
-        tr.commands.append(commands.copy())
-        tr.setpoints_m.append(np.array([lp.sp_m for lp in loops]))
+        tr.readings_m.append(readings)
+        tr.commands.append(commands)
         tr.flows_m3_s.append(plant.pump_flows)
-        tr.gains.append(
-            np.array([[g.kp, g.ki, g.kd] if (g := lp.applied) else [0.0, 0.0, 0.0] for lp in loops])
-        )
-        tr.modes.append(np.array([int(lp.mode) for lp in loops], dtype=float))
+        # setpoints, gains and modes change rarely: one read-only array per distinct value
+        tr.setpoints_m.append(self._rows.get("sp", tuple(lp.sp_m for lp in loops), _setpoint_row))
+        tr.gains.append(self._rows.get("gains", tuple(lp.applied for lp in loops), _gain_rows))
+        tr.modes.append(self._rows.get("modes", tuple(lp.mode for lp in loops), _mode_row))
 
     def run(self, duration_s: float, before_scan: Callable[[CoSimulation], None] | None = None) -> Trace:
         """Run for ``duration_s`` of model time (whole scans); return the trace."""
