@@ -541,12 +541,10 @@ class _ActiveSetQp:
             entry = base  # the base itself, evicted from the cache since
         elif 0 < moved <= _SCHUR_MAX_ROWS:
             entry = self._schur(base, act)  # type: ignore[arg-type]
-            if isinstance(entry, _LuFactor):
-                self._base = entry
         else:
             entry = self._lu(act)
-            if entry is not None:
-                self._base = entry
+        if isinstance(entry, _LuFactor):
+            self._base = entry  # a new LU (or the base again): the next sets border onto it
         self._cache[key] = entry
         if len(self._cache) > _KKT_CACHE:
             self._cache.popitem(last=False)
@@ -631,10 +629,6 @@ class _ActiveSetQp:
         lower = z - lo < -y
         upper = ~lower & (up - z < y)
         return lower | ((lo == up) & ~upper), upper
-
-    def cached(self, lower: BoolArray, upper: BoolArray) -> bool:
-        """Whether the factorisation for this active set is at hand."""
-        return (lower | upper).tobytes() in self._cache
 
 
 # ----------------------------------------------------------------------------------------------
@@ -891,7 +885,6 @@ class _OsqpOutcome:
     accurate: bool = False
     last_x: FloatArray | None = None
     last_y: FloatArray | None = None
-    kkt_solves: int = 0
     active: tuple[BoolArray, BoolArray] | None = None
     """The active set (lower, upper) of the accepted solution: exact when certified or polished,
     OSQP's guess otherwise; the next step's first candidate."""
@@ -1428,14 +1421,12 @@ class MpcController:
         cand = self._active
         if self._config.polish and cand is not None:
             sol = self._kkt.solve(q, lo, up, *cand)
-            out.kkt_solves += 1
             if sol is not None and sol.certified:
                 out.status = "skipped: the previous active set is optimal"
                 out.x, out.y, out.accurate, out.active = sol.x, sol.y, True, cand
                 return out
             shift = self._shift_y
             fix = self._kkt.correct(q, lo, up, cand[0][shift], cand[1][shift], PDAS_MAX_SETS)
-            out.kkt_solves += fix.sets
             if fix.solution is not None:
                 out.status = f"skipped: optimal active set found in {fix.sets} exact solves"
                 out.x, out.y, out.accurate = fix.solution.x, fix.solution.y, True
