@@ -113,12 +113,13 @@ def _std_vector(value: ArrayLike, size: int, name: str) -> FloatArray:
     return arr
 
 
-def _vector(value: ArrayLike, size: int, name: str) -> FloatArray:
-    """A finite 1-D float vector of length ``size``."""
+def _vector(value: ArrayLike, size: int, name: str, *, copy: bool = True) -> FloatArray:
+    """A finite 1-D float vector of length ``size`` (``copy=False``: a float vector of the right
+    shape comes back as it is, for values that are only read)."""
     if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (size,):
-        if not np.isfinite(value).all():  # the per-sample fast path: a copy and the value check
+        if not np.isfinite(value).all():  # the per-sample fast path: the value check
             raise ValueError(f"{name} must be finite")
-        return value.copy()
+        return value.copy() if copy else value
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as e:
@@ -285,6 +286,16 @@ class AugmentedKalmanFilter:
         self._P = P
         self._K = K
         self._radius = radius
+        # one sample as one product: [prior; posterior; innovation] of [last posterior; u; y]
+        na, ny = Aa.shape[0], self._ny
+        IKC = np.eye(na) - K @ Ca
+        self._sample_map = np.block(
+            [
+                [Aa, Ba, np.zeros((na, ny))],
+                [IKC @ Aa, IKC @ Ba, K],
+                [-Ca @ Aa, -Ca @ Ba, np.eye(ny)],
+            ]
+        )
 
     def set_model(self, A: ArrayLike, B: ArrayLike, Bd: ArrayLike | None = None) -> None:
         """Replace A and B (same shapes) and recompute the gain, keeping the current estimate.
@@ -380,10 +391,10 @@ class AugmentedKalmanFilter:
 
     def shift_state(self, dx: ArrayLike) -> None:
         """Add ``dx`` (n,) to the state part of the current estimate (used when the operating point moves)."""
-        dx_ = _vector(dx, self._n, "dx")
-        self._prior[: self._n] += dx_
+        dx_ = np.concatenate([_vector(dx, self._n, "dx"), np.zeros(self._n_eta)])
+        self._prior = self._prior + dx_  # new arrays: estimates already handed out are views
         if self._posterior is not None:
-            self._posterior[: self._n] += dx_
+            self._posterior = self._posterior + dx_
 
     def correct(self, y: ArrayLike) -> StateEstimate:
         """Corrector step: fold the measurement y(k) (ny,) [m, deviation] into the prior.
@@ -422,18 +433,23 @@ class AugmentedKalmanFilter:
         StateEstimate
             x(k|k), eta(k|k) and the innovation.
         """
-        y_ = _vector(y, self._ny, "y")
-        u_ = _vector(u_prev, self._m, "u_prev")
-        if self._posterior is not None:  # predict and correct, on the vectors checked above
-            self._prior = self._Aa @ self._posterior + self._Ba @ u_
-        innov = y_ - self._Ca @ self._prior
-        self._posterior = self._prior + self._K @ innov
-        return self._make_estimate(self._posterior, innov)
+        y_ = _vector(y, self._ny, "y", copy=False)
+        u_ = _vector(u_prev, self._m, "u_prev", copy=False)
+        if self._posterior is None:  # the first sample: correct the prior as it is
+            innov = y_ - self._Ca @ self._prior
+            self._posterior = self._prior + self._K @ innov
+            return self._make_estimate(self._posterior, innov)
+        # predict and correct in one product (``_sample_map``); the estimate is read-only views
+        na = self._prior.size
+        out = self._sample_map @ np.concatenate((self._posterior, u_, y_))
+        out.flags.writeable = False
+        self._prior = out[:na]
+        self._posterior = out[na : 2 * na]
+        return self._make_estimate(self._posterior, out[2 * na :])
 
     def _make_estimate(self, xi: FloatArray, innov: FloatArray) -> StateEstimate:
-        x = xi[: self._n].copy()
-        d = xi[self._n :].copy()
-        iv = innov.copy()
+        """Read-only views of xi and innov (the filter replaces, never mutates, its vectors)."""
+        x, d, iv = xi[: self._n], xi[self._n :], innov[:]
         for a in (x, d, iv):
             a.flags.writeable = False
         return StateEstimate(x=x, disturbance=d, innovation=iv)

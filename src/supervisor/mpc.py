@@ -120,7 +120,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -179,13 +179,16 @@ def _matrix(value: ArrayLike, name: str, rows: int | None, cols: int | None) -> 
     return arr
 
 
-def _vector(value: ArrayLike, size: int, name: str, *, allow_inf: bool = False) -> FloatArray:
-    """Scalar (broadcast) or 1-D of length ``size``; NaN never allowed, +-inf only if ``allow_inf``."""
+def _vector(
+    value: ArrayLike, size: int, name: str, *, allow_inf: bool = False, copy: bool = True
+) -> FloatArray:
+    """Scalar (broadcast) or 1-D of length ``size``; NaN never allowed, +-inf only if ``allow_inf``
+    (``copy=False``: a float vector of the right shape comes back as it is, for values only read)."""
     if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (size,):
-        # the per-step fast path (a float vector already): a copy and the value check
+        # the per-step fast path (a float vector already): the value check
         if not (np.isfinite(value).all() if not allow_inf else not np.isnan(value).any()):
             raise ValueError(f"{name} must be {'non-NaN' if allow_inf else 'finite'}")
-        return value.copy()
+        return value.copy() if copy else value
     arr = _as_float(value, name)
     if arr.ndim == 0:
         arr = np.full(size, float(arr))
@@ -209,6 +212,14 @@ def _weight(value: ArrayLike, size: int, name: str) -> FloatArray:
     if size and np.min(np.linalg.eigvalsh(W)) < -1e-12 * max(1.0, float(np.max(np.abs(W)))):
         raise ValueError(f"{name} must be positive semidefinite")
     return W
+
+
+def _sqrt_psd(W: FloatArray) -> FloatArray:
+    """L with L' L = W for a symmetric PSD W (the square roots of a diagonal W exactly)."""
+    if np.count_nonzero(W - np.diag(np.diag(W))) == 0:
+        return np.diag(np.sqrt(np.diag(W)))
+    lam, V = np.linalg.eigh(W)
+    return np.sqrt(np.clip(lam, 0.0, None))[:, None] * V.T
 
 
 def _readonly(a: FloatArray) -> FloatArray:
@@ -261,6 +272,13 @@ _SCHUR_PIVOT_MIN = 1e-13
 #: Active sets tried per step by the primal-dual active-set corrections before OSQP runs.
 PDAS_MAX_SETS = 12
 
+#: Affine laws kept, keyed by the active set (:class:`_AffineLaw`).
+_LAW_CACHE = 4
+
+_ONE = np.ones(1)
+
+_REPEATED = "skipped: the previous active set is optimal"
+
 
 def _absmax(a: FloatArray) -> float:
     return float(np.abs(a).max()) if a.size else 0.0
@@ -300,8 +318,8 @@ class _LuFactor:
         self.z_rows = np.zeros((_BORDER_ROWS, pos.size))
 
     def solve(self, q: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """v, y_W with P v + A_W' y_W = -q and A_W v = b."""
-        rhs = np.empty(self.pos.size)
+        """v, y_W with P v + A_W' y_W = -q and A_W v = b (q, b vectors, or matrices column by column)."""
+        rhs = np.empty((self.pos.size, *q.shape[1:]))
         rhs[self.pos_v] = -q
         rhs[self.pos_w] = b
         sol = self.lu.solve(rhs)
@@ -346,21 +364,21 @@ class _SchurFactor:
         self._Ct = Ct
         self._Zt = Zt
         self._M_lu = M_lu
-        self._r1 = np.zeros(Ct.shape[0])
         self._n_add = n_add
 
     def solve(self, q: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """v, y_W with P v + A_W' y_W = -q and A_W v = b."""
+        """v, y_W with P v + A_W' y_W = -q and A_W v = b (q, b vectors, or matrices column by column)."""
         base = self._base
-        r0 = np.zeros(base.pos.size)
+        cols = q.shape[1:]
+        r0 = np.zeros((base.pos.size, *cols))
         r0[base.pos_v] = -q
         r0[self._pos_keep] = b[self._keep_t]
         s = base.lu.solve(r0)
-        r1 = self._r1
+        r1 = np.zeros((self._Ct.shape[0], *cols))
         r1[: self._n_add] = b[self._add_t]
         t, _ = lapack.dgetrs(*self._M_lu, self._Ct @ s - r1)
-        s -= t @ self._Zt
-        y = np.empty(self.idx.size)
+        s -= self._Zt.T @ t
+        y = np.empty((self.idx.size, *cols))
         y[self._keep_t] = s[self._pos_keep]
         y[self._add_t] = t[: self._n_add]
         return s[base.pos_v], y
@@ -376,6 +394,28 @@ class _Correction:
     upper: BoolArray
     sets: int
     """Active sets solved."""
+
+
+@dataclass
+class _AffineKkt:
+    """The KKT solution of one active set as an affine function of a parameter vector.
+
+    The QP's vectors are affine in the parameters, ``q = Qm th``, ``l = Lm th``, ``u = Um th``
+    (th's last entry is 1), and on a fixed active set so is the KKT solution: ``x = X th``,
+    ``y = Y th``, ``A x = Z th``. The certificate becomes linear too: the solution is the optimum
+    to ``KKT_TOL`` iff ``checks @ th >= 0`` (inactive rows within their bounds and active
+    multipliers of the right signs, the tolerance folded into the last column), provided the
+    KKT residual, at most ``residual @ |th|``, is within ``KKT_TOL``.
+    """
+
+    x: FloatArray
+    """(nv, p)"""
+    y: FloatArray
+    """(nc, p)"""
+    checks: FloatArray
+    """(k, p)"""
+    residual: FloatArray
+    """(p,): the largest KKT residual of each column of [X; Y]."""
 
 
 def _pdas_step(
@@ -619,6 +659,53 @@ class _ActiveSetQp:
             last = (sol, lower, upper)
             lower, upper = _pdas_step(sol, lower, upper, lo, up, eq, single)
         return _Correction(None, lower, upper, sets)
+
+    def affine(
+        self, lower: BoolArray, upper: BoolArray, Qm: FloatArray, Lm: FloatArray, Um: FloatArray
+    ) -> _AffineKkt | None:
+        """The solution on W = lower | upper for every parameter (see :class:`_AffineKkt`).
+
+        ``Qm`` (nv, p), ``Lm`` and ``Um`` (nc, p): the QP's q, l and u as affine maps of the
+        parameters (last column the constant; an infinite bound has an infinite constant and a
+        zero row). Each column is one solve on the set's factorisation and one step of iterative
+        refinement. None if the set is singular or bounds an active row at infinity.
+        """
+        act = lower | upper
+        factor = self._factor(act)
+        if factor is None:
+            return None
+        nv, p = self._nv, Qm.shape[1]
+        idx = factor.idx
+        Bm = np.where(lower[idx, None], Lm[idx], Um[idx])
+        if not np.isfinite(Bm).all():
+            return None
+        XY = np.zeros((nv + self._nc, p))
+        Rd, Ra = -Qm, Bm  # the first sweep solves the system itself, the second refines
+        for _sweep in range(2):
+            dv, dy = factor.solve(-Rd, Ra)
+            XY[:nv] += dv
+            XY[nv + idx] += dy
+            KXY = self._K @ XY
+            Rd = -(KXY[:nv] + Qm)
+            Ra = Bm - KXY[nv + idx]
+        residual = np.maximum(np.abs(Rd).max(axis=0), np.abs(Ra).max(axis=0, initial=0.0))
+        X, Y, Z = XY[:nv], XY[nv:], KXY[nv:]
+        # rows that hold the same value for every parameter: equality rows, no sign condition
+        eq = (Lm == Um).all(axis=1)
+        tol = np.zeros(p)
+        tol[-1] = KKT_TOL
+        free = ~act
+        lo_rows = free & np.isfinite(Lm[:, -1])
+        up_rows = free & np.isfinite(Um[:, -1])
+        checks = np.vstack(
+            [
+                Z[lo_rows] - Lm[lo_rows] + tol,
+                Um[up_rows] - Z[up_rows] + tol,
+                -Y[lower & ~eq] + tol,  # y <= 0 on an active lower bound
+                Y[upper & ~eq] + tol,
+            ]
+        )
+        return _AffineKkt(X, Y, checks, residual)
 
     def guess(
         self, lo: FloatArray, up: FloatArray, x: FloatArray, y: FloatArray
@@ -888,6 +975,53 @@ class _OsqpOutcome:
     active: tuple[BoolArray, BoolArray] | None = None
     """The active set (lower, upper) of the accepted solution: exact when certified or polished,
     OSQP's guess otherwise; the next step's first candidate."""
+    repeated: bool = False
+    """The previous step's active set was optimal again."""
+
+
+@dataclass
+class _AffineLaw:
+    r"""The controller's plan on one active set as an affine function of the step's data.
+
+    For a constant reference the QP's vectors are affine in th = [dx0 (n) [m], eta (n_eta),
+    r (nz) [m], u(-1) (m) [m^3/s], 1], and so, on a fixed active set, are its KKT solution, the
+    plan, the predicted outputs and the cost's residuals (:class:`_AffineKkt`). ``out = G th``
+    stacks, in this order (``ends`` marks where each block ends):
+
+    1. the plan u(0..Np-1), row-major (absolute [m^3/s]);
+    2. the predicted outputs z(1..Np) for that plan (absolute [m]);
+    3. the weighted residuals w of :meth:`MpcController._residual_roots` (1/2 |w|^2 is the
+       plan's cost without the slack terms);
+    4. z - z_max and z_min - z for the finite output bounds (all <= 0: no slack cost);
+    5. checks, all >= 0 iff the plan is the QP's certified optimum and u(-1) lies where the
+       first rate row is not clipped (``_qp_vectors``).
+
+    Near a steady state the active set repeats, and a step is one small matrix-vector product.
+    """
+
+    G: FloatArray
+    ends: tuple[int, int, int, int]
+    xy: FloatArray
+    """(nv + nc, p): the scaled QP's primal and dual solution, for OSQP's warm start."""
+
+    def evaluate(self, theta: FloatArray) -> FloatArray | None:
+        """G th, or None if the set is not certified optimal at th."""
+        out = self.G @ theta
+        return out if out[self.ends[3] :].min() >= 0.0 else None
+
+
+def _affine_map(f: Callable[[FloatArray], FloatArray], base: FloatArray, steps: FloatArray) -> FloatArray:
+    """[J, c] of an affine ``f(th) = J th + c`` (c the last column), from f at ``base`` and at
+    ``base + steps[j] e_j``. Rows where f is infinite at the base are constant: zero J, c = +-inf."""
+    f0 = f(base)
+    finite = np.isfinite(f0)
+    J = np.zeros((f0.size, base.size))
+    for j, h in enumerate(steps):
+        th = base.copy()
+        th[j] += h
+        np.subtract(f(th), f0, out=J[:, j], where=finite)
+        J[:, j] /= h
+    return np.column_stack([J, np.where(finite, f0 - J @ base, f0)])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -943,6 +1077,12 @@ class MpcController:
         self._has_z_rows = bool(np.any(np.isfinite(self._z_min)) or np.any(np.isfinite(self._z_max)))
         self._rate_rows = N if config.first_move_rate_limited else N - 1
         self._has_rate_rows = bool(np.any(np.isfinite(self._du_min)) or np.any(np.isfinite(self._du_max)))
+        # where u(-1) is clipped to so that its rate window meets the input box [m^3/s]
+        # the same as Python floats for the projection's per-move loops
+        self._u_min_list, self._u_max_list = self._u_min.tolist(), self._u_max.tolist()
+        self._du_min_list, self._du_max_list = self._du_min.tolist(), self._du_max.tolist()
+        self._u_prev_min_list = (self._u_min - self._du_max).tolist()
+        self._u_prev_max_list = (self._u_max - self._du_min).tolist()
         if not self._has_rate_rows:
             self._rate_rows = 0
 
@@ -966,6 +1106,7 @@ class MpcController:
         self._Qz = _weight(config.Qz, nz, "Qz")
         self._S = _weight(config.S, m, "S")
         self._R = _weight(config.R, m, "R")
+        self._Lq, self._Ls, self._Lr = (_sqrt_psd(W) for W in (self._Qz, self._S, self._R))
         Dz, Du = np.diag(self._sz), np.diag(self._su)
         scaled = [Dz @ self._Qz @ Dz, Du @ self._S @ Du, Du @ self._R @ Du]
         self._c = max(float(np.max(np.diag(W))) for W in scaled)
@@ -988,6 +1129,7 @@ class MpcController:
                 raise ValueError("slack_quadratic must be >= 0")
             self._rho_q_t = rho_q * self._sz**2 / self._c
         self._slack_si = self.slack_weights  # fixed from here on
+        self._half_rho_q_si, self._rho_l_si = 0.5 * self._slack_si[0], self._slack_si[1]
 
         # -- estimator ---------------------------------------------------------------------------
         if config.estimator_outputs is None:
@@ -999,6 +1141,7 @@ class MpcController:
             if len(set(rows)) != len(rows) or min(rows) < 0 or max(rows) >= ny:
                 raise ValueError(f"estimator_outputs must be distinct row indices of C in 0..{ny - 1}")
             self._est_rows = np.array(rows, dtype=np.int64)
+        self._est_subset = not np.array_equal(self._est_rows, np.arange(ny))
         if config.disturbance_matrix is None:
             self._Bd_follows_B = True
             Bd = model.B.copy()
@@ -1030,6 +1173,8 @@ class MpcController:
         self._set_vector_bases()
         P, Aqp = self._qp_matrices()
         self._kkt = _ActiveSetQp(P, Aqp)
+        self._laws: OrderedDict[bytes, _AffineLaw | None] = OrderedDict()
+        self._maps: tuple[FloatArray, FloatArray, FloatArray] | None = None
         q, lo, up = self._qp_vectors(np.zeros(n), np.zeros(self._n_eta), np.zeros((N, nz)), model.u_op)
         # the tolerance ladder: polish at each rung; without polishing only the last rung is used
         self._tolerances = tuple(float(e) for e in config.tolerances)
@@ -1140,6 +1285,9 @@ class MpcController:
         self._Phi_z = Cbar @ Phi
         self._Psi_z = Cbar @ Psi
         self._Gam_z = Cbar @ Gam
+        # z~(1..Np) = Zx dx0 + Zeta eta + Gam_z U~ (unscaled dx0 and eta, _scaled_z)
+        self._Zx = self._Phi_z / self._sx[None, :]
+        self._Zeta = self._Psi_z @ (self._Bd / self._sx[:, None])
         # steady-state target: [[I - A~, -B~], [Cz~, 0]] [x~s; u~s] = [w~; r~]
         T = np.block([[np.eye(n) - self._At, -self._Bt], [self._Czt, np.zeros((self._nz, m))]])
         self._target_pinv = np.linalg.pinv(T)
@@ -1255,6 +1403,7 @@ class MpcController:
             lo[rr] = np.tile(self._dmin_t, self._rate_rows)
             up[rr] = np.tile(self._dmax_t, self._rate_rows)
         self._z_op = model.Cz @ model.x_op
+        self._y_op = model.C @ model.x_op
         if ns:
             zlo = slice(self._row_zlo, self._row_zlo + ns)
             zhi = slice(self._row_zhi, self._row_zhi + ns)
@@ -1317,8 +1466,10 @@ class MpcController:
     def _reset_runtime_state(self) -> None:
         self._plan: FloatArray | None = None
         self._active: tuple[BoolArray, BoolArray] | None = None
+        self._law: _AffineLaw | None = None
         self._ws_x: FloatArray | None = None
         self._ws_y: FloatArray | None = None
+        self._ws_law: tuple[_AffineLaw, FloatArray] | None = None
         self._failures = 0
         self._consecutive = 0
         self._inaccurate = 0
@@ -1354,12 +1505,14 @@ class MpcController:
         -------
         MpcResult
         """
-        y_ = _vector(y, self._model.n_measured, "y")
-        u_prev_ = _vector(u_prev, self._m, "u_prev")
+        y_ = _vector(y, self._model.n_measured, "y", copy=False)
+        u_prev_ = _vector(u_prev, self._m, "u_prev", copy=False)  # read only, never kept
         r_ = self._reference(r)
-        y_dev = (y_ - self._model.C @ self._model.x_op)[self._est_rows]
+        y_dev = y_ - self._y_op
+        if self._est_subset:
+            y_dev = y_dev[self._est_rows]
         est = self._estimator.update(y_dev, u_prev_ - self._model.u_op)
-        return self._solve(np.array(est.x), np.array(est.disturbance), r_, u_prev_)
+        return self._solve(est.x, est.disturbance, r_, u_prev_)
 
     def plan(
         self, x: ArrayLike, r: ArrayLike, u_prev: ArrayLike, disturbance: ArrayLike | None = None
@@ -1390,12 +1543,14 @@ class MpcController:
         return self._solve(x_ - self._model.x_op, d_, r_, u_prev_)
 
     def _reference(self, r: ArrayLike) -> FloatArray:
-        arr = _as_float(r, "r")
+        """r checked: (nz,) for a constant reference or (Np, nz) for a preview (both broadcast
+        against (Np, nz) arrays; only read, so a float array comes back as it is)."""
+        arr = r if type(r) is np.ndarray and r.dtype == np.float64 else _as_float(r, "r")
         if arr.shape not in ((self._nz,), (self._N, self._nz)):
             raise ValueError(f"r must have shape ({self._nz},) or ({self._N}, {self._nz}), got {arr.shape}")
         if not np.isfinite(arr).all():
             raise ValueError("r must be finite")
-        return np.broadcast_to(arr, (self._N, self._nz))  # read-only, no copy
+        return arr
 
     def _solve_qp(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> _OsqpOutcome:
         """Solve the scaled QP; return the accepted solution (scaled QP variables).
@@ -1422,8 +1577,8 @@ class MpcController:
         if self._config.polish and cand is not None:
             sol = self._kkt.solve(q, lo, up, *cand)
             if sol is not None and sol.certified:
-                out.status = "skipped: the previous active set is optimal"
-                out.x, out.y, out.accurate, out.active = sol.x, sol.y, True, cand
+                out.status = _REPEATED
+                out.x, out.y, out.accurate, out.active, out.repeated = sol.x, sol.y, True, cand, True
                 return out
             shift = self._shift_y
             fix = self._kkt.correct(q, lo, up, cand[0][shift], cand[1][shift], PDAS_MAX_SETS)
@@ -1475,10 +1630,20 @@ class MpcController:
             out.active = self._kkt.guess(lo, up, out.x, out.y)
         return out
 
-    def _solve(self, dx0: FloatArray, eta: FloatArray, r_abs: FloatArray, u_prev: FloatArray) -> MpcResult:
+    def _solve(self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray) -> MpcResult:
+        """The step from the state estimate, disturbance, reference ((nz,) or (Np, nz)) and u(-1)."""
+        law = self._law
+        constant_r = r.ndim == 1
+        if law is not None and constant_r:
+            theta = np.concatenate((dx0, eta, r, u_prev, _ONE))
+            fast = law.evaluate(theta)
+            if fast is not None:
+                return self._law_step(law, theta, fast, dx0, eta, r, u_prev)
+        self._settle_warm_start()
+        r_abs = np.broadcast_to(r, (self._N, self._nz))
         q, lo, up = self._qp_vectors(dx0, eta, r_abs, u_prev)
         out = self._solve_qp(q, lo, up)
-        self._active = out.active
+        self._set_active(out.active, build_law=out.repeated and constant_r)
         sol_x, sol_y = out.x, out.y
         model = self._model
         N, m = self._N, self._m
@@ -1508,21 +1673,83 @@ class MpcController:
             elif self._ws_x is not None and self._ws_y is not None:
                 self._ws_x = self._ws_x[self._shift_x]
                 self._ws_y = self._ws_y[self._shift_y]
-        plan = self._project(plan, u_prev)
+        plan, _ = self._project(plan, u_prev)
         if status != MpcStatus.HELD or self._plan is not None:
             self._plan = plan  # the last safe plan (a held u(-1) is not one)
         z_pred = self._predict_z(dx0, eta, plan)
-        objective, violation = self._objective(plan, z_pred, r_abs, u_prev, eta)
+        return self._result(plan, z_pred, status, out, dx0, eta, r_abs, u_prev)
+
+    def _law_step(
+        self,
+        law: _AffineLaw,
+        theta: FloatArray,
+        out: FloatArray,
+        dx0: FloatArray,
+        eta: FloatArray,
+        r: FloatArray,
+        u_prev: FloatArray,
+    ) -> MpcResult:
+        """The step when the previous active set's law certifies its plan (``out = G th``)."""
+        N, m, nz = self._N, self._m, self._nz
+        self._ws_law = (law, theta)  # the warm start, computed only if OSQP is needed later
+        self._consecutive = 0
+        ends = law.ends
+        raw = out[: ends[0]].reshape(N, m)
+        plan, moved = self._project(raw, u_prev)
+        self._plan = plan
+        if moved:
+            # the projection moves a certified plan by rounding errors at most, but the contract
+            # is the prediction and cost of the plan returned
+            z_pred = self._predict_z(dx0, eta, plan)
+            return self._result(plan, z_pred, MpcStatus.SOLVED, _OsqpOutcome(_REPEATED), dx0, eta, r, u_prev)
+        z_pred = out[ends[0] : ends[1]].reshape(N, nz)
+        w = out[ends[1] : ends[2]]
+        if ends[3] > ends[2] and out[ends[2] : ends[3]].max() > 0.0:
+            slack, violation = self._slack(z_pred)
+        else:
+            slack, violation = 0.0, 0.0
+        cost = 0.5 * float(np.vdot(w, w)) + slack
+        status = _OsqpOutcome(_REPEATED)
+        return self._make_result(plan, z_pred, MpcStatus.SOLVED, status, dx0, eta, cost, violation)
+
+    def _result(
+        self,
+        plan: FloatArray,
+        z_pred: FloatArray,
+        status: MpcStatus,
+        out: _OsqpOutcome,
+        dx0: FloatArray,
+        eta: FloatArray,
+        r: FloatArray,
+        u_prev: FloatArray,
+    ) -> MpcResult:
+        """The step's result. ``plan`` (also kept as the last plan), ``z_pred`` and ``eta`` are
+        this step's own arrays, handed out read-only."""
+        objective, violation = self._objective(plan, z_pred, r, u_prev, eta)
+        return self._make_result(plan, z_pred, status, out, dx0, eta, objective, violation)
+
+    def _make_result(
+        self,
+        plan: FloatArray,
+        z_pred: FloatArray,
+        status: MpcStatus,
+        out: _OsqpOutcome,
+        dx0: FloatArray,
+        eta: FloatArray,
+        objective: float,
+        violation: float,
+    ) -> MpcResult:
+        planned = _readonly(plan)
         return MpcResult(
-            u=_readonly(plan[0].copy()),
+            u=planned[0],
             status=status,
             osqp_status=out.status,
             iterations=out.iterations,
             solve_time_s=out.time_s,
-            planned_u=_readonly(plan.copy()),
+            planned_u=planned,
             predicted_z=_readonly(z_pred),
-            disturbance=_readonly(eta.copy()),
-            state=_readonly(model.x_op + dx0),
+            disturbance=_readonly(eta),
+            state=_readonly(self._model.x_op + dx0),
             objective=objective,
             max_output_violation=violation,
             failures=self._failures,
@@ -1530,60 +1757,209 @@ class MpcController:
             inaccurate=self._inaccurate,
         )
 
-    def _project(self, plan: FloatArray, u_prev: FloatArray) -> FloatArray:
-        """Project a plan, move by move, onto the input bounds and the rate bounds.
+    # ------------------------------------------------------------------------------------------
+    # affine laws
+    # ------------------------------------------------------------------------------------------
+    def _set_active(self, active: tuple[BoolArray, BoolArray] | None, build_law: bool) -> None:
+        """Remember the accepted active set and its law (built when the set repeats)."""
+        self._active = active
+        self._law = None
+        if active is None or not self._config.polish:
+            return
+        key = active[0].tobytes() + active[1].tobytes()
+        if key in self._laws:
+            self._laws.move_to_end(key)
+            self._law = self._laws[key]
+        elif build_law:
+            self._law = self._laws[key] = self._make_law(*active)  # None: singular, not retried
+            if len(self._laws) > _LAW_CACHE:
+                self._laws.popitem(last=False)
+
+    def _settle_warm_start(self) -> None:
+        """OSQP's warm start from the last law step's solution (shifted by one sample)."""
+        if self._ws_law is not None:
+            law, theta = self._ws_law
+            xy = law.xy @ theta
+            self._ws_x = xy[: self._nv][self._shift_x]
+            self._ws_y = xy[self._nv :][self._shift_y]
+            self._ws_law = None
+
+    def _law_point(self) -> tuple[FloatArray, FloatArray]:
+        """A parameter point th (without its 1) inside the laws' domain, and a step per entry of
+        the size of its range (so the affine maps are computed without cancellation)."""
+        w_per_eta = np.abs(self._Bd / self._sx[:, None]).max(axis=0, initial=0.0)
+        eta_step = 1.0 / np.where(w_per_eta > 0.0, w_per_eta, 1.0)
+        base = np.concatenate(
+            [np.zeros(self._n), np.zeros(self._n_eta), self._z_op, 0.5 * (self._u_min + self._u_max)]
+        )
+        return base, np.concatenate([self._sx, eta_step, self._sz, 0.25 * self._su])
+
+    def _split(self, theta: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """(dx0, eta, r (Np, nz), u(-1)) of th (without its 1)."""
+        n, ne, nz = self._n, self._n_eta, self._nz
+        r = np.broadcast_to(theta[n + ne : n + ne + nz], (self._N, nz))
+        return theta[:n], theta[n : n + ne], r, theta[n + ne + nz :]
+
+    def _vector_maps(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """q, l and u of the scaled QP as affine maps of th (``_qp_vectors`` for a constant r
+        while u(-1) leaves the first rate row unclipped)."""
+        if self._maps is None:
+            nv, nc = self._nv, self._nc
+
+            def vectors(theta: FloatArray) -> FloatArray:
+                return np.concatenate(self._qp_vectors(*self._split(theta)))
+
+            M = _affine_map(vectors, *self._law_point())
+            self._maps = (M[:nv], M[nv : nv + nc], M[nv + nc :])
+        return self._maps
+
+    def _make_law(self, lower: BoolArray, upper: BoolArray) -> _AffineLaw | None:
+        """The affine law of the active set (lower, upper); None if the set is singular."""
+        Qm, Lm, Um = self._vector_maps()
+        kkt = self._kkt.affine(lower, upper, Qm, Lm, Um)
+        if kkt is None:
+            return None
+        N, m, n, ne, nz = self._N, self._m, self._n, self._n_eta, self._nz
+        p = Qm.shape[1]
+        u_t = kkt.x[self._u_off : self._u_off + N * m]
+        plan = u_t * np.tile(self._su, N)[:, None]
+        plan[:, -1] += np.tile(self._model.u_op, N)
+        pick = np.eye(p)
+        z = self._scaled_z(pick[:n], pick[n : n + ne], u_t) * np.tile(self._sz, N)[:, None]
+        z[:, -1] += np.tile(self._z_op, N)
+
+        def residuals(theta: FloatArray) -> FloatArray:
+            _, eta, r, u_prev = self._split(theta)
+            th = np.append(theta, 1.0)
+            return self._residual_roots((plan @ th).reshape(N, m), (z @ th).reshape(N, nz), r, u_prev, eta)
+
+        w = _affine_map(residuals, *self._law_point())
+        excess = []
+        for bound, sign in ((self._z_max, 1.0), (self._z_min, -1.0)):
+            finite = np.tile(np.isfinite(bound), N)
+            rows = sign * z[finite]
+            rows[:, -1] -= sign * np.tile(bound, N)[finite]
+            excess.append(rows)
+        # the KKT residual at th is at most residual @ |th|, so within KKT_TOL wherever
+        # |th_j| <= KKT_TOL / (p residual_j) for every parameter j: two linear checks each
+        res = kkt.residual
+        if res[-1] * p > KKT_TOL:
+            return None  # not even the constant part is solved accurately: no law
+        rows = [plan, z, w, *excess, kkt.checks]
+        ends = np.cumsum([len(b) for b in rows[:5]])
+        for j in np.flatnonzero(res[:-1] > 0.0):
+            for sign in (1.0, -1.0):
+                row = np.zeros(p)
+                row[j] = sign
+                row[-1] = KKT_TOL / (p * res[j])
+                rows.append(row[None, :])
+        if self._rate_rows and self._config.first_move_rate_limited:
+            # _qp_vectors clips u~(-1) to [u~min - du~max, u~max - du~min] for the first rate row;
+            # the law holds where that clip does nothing
+            u_col = n + ne + nz
+            for lim, sign in ((self._umin_t - self._dmax_t, 1.0), (self._umax_t - self._dmin_t, -1.0)):
+                for j in np.flatnonzero(np.isfinite(lim)):
+                    row = np.zeros(p)
+                    row[u_col + j] = sign / self._su[j]
+                    row[-1] = -sign * (self._model.u_op[j] / self._su[j] + lim[j])
+                    rows.append(row[None, :])
+        return _AffineLaw(
+            G=np.ascontiguousarray(np.vstack(rows)),
+            ends=(int(ends[0]), int(ends[1]), int(ends[2]), int(ends[4])),
+            xy=np.vstack([kkt.x, kkt.y]),
+        )
+
+    def _project(self, plan: FloatArray, u_prev: FloatArray) -> tuple[FloatArray, bool]:
+        """Project a plan, move by move, onto the input bounds and the rate bounds; also say
+        whether anything moved.
 
         The first move is rate-limited relative to u(-1) (clipped so that the rate window meets
         the input box, as in the QP) when ``first_move_rate_limited``; corrections are at solver
-        tolerance except on the held path.
+        tolerance except on the held path. A plan that rides a rate bound breaks it by rounding
+        errors, so the sequential pass (in Python floats: a few dozen numbers) starts at the first
+        move that breaks one.
         """
         umin, umax = self._u_min, self._u_max
         out = np.minimum(np.maximum(plan, umin), umax)  # np.clip's result, less call overhead
-        lim = self._has_rate_rows
-        if not lim:
-            return out
-        dmin, dmax = self._du_min, self._du_max
-        if self._config.first_move_rate_limited:
-            base = np.minimum(np.maximum(u_prev, umin - dmax), umax - dmin)
-            lo0 = np.maximum(umin, base + dmin)
-            out[0] = np.minimum(np.maximum(out[0], lo0), np.minimum(umax, base + dmax))
-        d = out[1:] - out[:-1]
-        if (d >= dmin).all() and (d <= dmax).all():
-            return out
-        for k in range(1, self._N):
-            lo = np.maximum(umin, out[k - 1] + dmin)
-            hi = np.minimum(umax, out[k - 1] + dmax)
-            out[k] = np.minimum(np.maximum(out[k], lo), hi)
+        if self._has_rate_rows:
+            dmin, dmax = self._du_min, self._du_max
+            if self._config.first_move_rate_limited:
+                out[0] = self._first_move(out[0].tolist(), u_prev.tolist())
+            d = out[1:] - out[:-1]
+            broken = (d < dmin) | (d > dmax)
+            if broken.any():
+                out = self._project_moves(out, int(broken.any(axis=1).argmax()) + 1)
+        return out, bool((out != plan).any())
+
+    def _first_move(self, u0: list[float], u_prev: list[float]) -> list[float]:
+        """u0 clipped to the rate window of u(-1), itself first clipped to where that window
+        meets the input box (u0 already in the box; m numbers, in Python floats)."""
+        umin, umax = self._u_min_list, self._u_max_list
+        dmin, dmax = self._du_min_list, self._du_max_list
+        lo_prev, hi_prev = self._u_prev_min_list, self._u_prev_max_list
+        out = []
+        for j, v in enumerate(u0):
+            base = min(max(u_prev[j], lo_prev[j]), hi_prev[j])
+            lo = max(umin[j], base + dmin[j])
+            hi = min(umax[j], base + dmax[j])
+            out.append(min(max(v, lo), hi))
         return out
+
+    def _project_moves(self, plan: FloatArray, first: int) -> FloatArray:
+        """Clip moves ``first``..Np-1 in turn to the rate window of the move before, within the
+        input bounds (the same floating-point operations as ``np.minimum(np.maximum(...))``)."""
+        rows = plan.tolist()
+        umin, umax = self._u_min_list, self._u_max_list
+        dmin, dmax = self._du_min_list, self._du_max_list
+        prev = rows[first - 1]
+        for row in rows[first:]:
+            for j, v in enumerate(row):
+                lo = max(umin[j], prev[j] + dmin[j])
+                hi = min(umax[j], prev[j] + dmax[j])
+                row[j] = min(max(v, lo), hi)
+            prev = row
+        return np.array(rows)
 
     def _predict_z(self, dx0: FloatArray, eta: FloatArray, plan: FloatArray) -> FloatArray:
         """z(1..Np) [m] of the linear model for the plan (exact prediction, any formulation)."""
         u_t = ((plan - self._model.u_op) / self._su).reshape(-1)
-        zt = self._Phi_z @ (dx0 / self._sx) + self._Psi_z @ self._scaled_w(eta) + self._Gam_z @ u_t
-        return self._z_op + zt.reshape(self._N, self._nz) * self._sz
+        return self._z_op + self._scaled_z(dx0, eta, u_t).reshape(self._N, self._nz) * self._sz
+
+    def _scaled_z(self, dx0: FloatArray, eta: FloatArray, u_t: FloatArray) -> FloatArray:
+        """z~(1..Np) stacked, of dx0 [m], eta and U~ (vectors, or matrices column by column)."""
+        return self._Zx @ dx0 + self._Zeta @ eta + self._Gam_z @ u_t
 
     def _objective(
-        self, plan: FloatArray, z: FloatArray, r_abs: FloatArray, u_prev: FloatArray, eta: FloatArray
+        self, plan: FloatArray, z: FloatArray, r: FloatArray, u_prev: FloatArray, eta: FloatArray
     ) -> tuple[float, float]:
-        """SI cost of the plan (constants included) and its largest output-bound violation [m]."""
-        e = z - r_abs
-        track = 0.5 * float(((e @ self._Qz) * e).sum())
+        """SI cost of the plan (constants included) and its largest output-bound violation [m];
+        r is (nz,) or (Np, nz)."""
+        w = self._residual_roots(plan, z, r, u_prev, eta)
+        slack, violation = self._slack(z)
+        return 0.5 * float(np.vdot(w, w)) + slack, violation
+
+    def _residual_roots(
+        self, plan: FloatArray, z: FloatArray, r: FloatArray, u_prev: FloatArray, eta: FloatArray
+    ) -> FloatArray:
+        """w with 1/2 |w|^2 the plan's tracking, move and input cost (SI): z - r, the moves and
+        u - u_ss, each times a square root L of its weight (L' L = Qz, S, R)."""
         du = np.empty_like(plan)
         du[0] = plan[0] - u_prev
         np.subtract(plan[1:], plan[:-1], out=du[1:])
-        move = 0.5 * float(((du @ self._S) * du).sum())
-        cost = track + move
+        parts = [((z - r) @ self._Lq.T).reshape(-1), (du @ self._Ls.T).reshape(-1)]
         if self._use_R:
             model = self._model
-            rt_last = (r_abs[-1] - model.Cz @ model.x_op) / self._sz
+            rt_last = ((r if r.ndim == 1 else r[-1]) - self._z_op) / self._sz
             uss = model.u_op + self._u_target(self._scaled_w(eta), rt_last) * self._su
-            eu = plan - uss
-            cost += 0.5 * float(np.sum((eu @ self._R) * eu))
-        viol = np.maximum(0.0, np.maximum(z - self._z_max, self._z_min - z))
-        if self._has_z_rows:
-            rho_q, rho_l = self._slack_si
-            cost += float((0.5 * rho_q * viol**2 + rho_l * viol).sum())
-        return cost, float(viol.max()) if viol.size else 0.0
+            parts.append(((plan - uss) @ self._Lr.T).reshape(-1))
+        return np.concatenate(parts)
+
+    def _slack(self, z: FloatArray) -> tuple[float, float]:
+        """The slack cost (SI) of the output-bound violations of z and the largest one [m]."""
+        if not self._has_z_rows:
+            return 0.0, 0.0
+        viol = np.maximum(np.maximum(z - self._z_max, self._z_min - z), 0.0)
+        return float(np.vdot(viol, self._half_rho_q_si * viol + self._rho_l_si)), float(viol.max())
 
     # ------------------------------------------------------------------------------------------
     # model update
@@ -1625,6 +2001,10 @@ class MpcController:
         )
         Bd = B_.copy() if self._Bd_follows_B else self._Bd
         self._estimator.set_model(A_, B_, Bd)  # validates before changing anything
+        self._settle_warm_start()  # from the old law, before the laws go
+        self._laws.clear()
+        self._law = None
+        self._maps = None
         self._estimator.shift_state(self._model.x_op - new_model.x_op)
         old_u_op = self._model.u_op
         self._model = new_model
