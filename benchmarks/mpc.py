@@ -76,8 +76,9 @@ class Series:
     iterations: list[int] = field(default_factory=list)
     status: Counter[str] = field(default_factory=Counter)
     path: Counter[str] = field(default_factory=Counter)
-    """How the controller's steps were solved: ``previous`` (the previous active set),
-    ``corrections`` (active-set corrections) or ``osqp``."""
+    """How the controller's steps were solved (``MpcResult.solved_by``): ``law`` (the previous
+    active set's affine law), ``previous`` (the previous active set, on its factorisation),
+    ``corrections`` (active-set corrections), ``osqp`` or ``held``."""
     du0: list[float] = field(default_factory=list)
     """|u0 - u0 of the controller| / input range, largest over the inputs."""
     detail: str = ""
@@ -110,10 +111,9 @@ class HorizonResult:
 
 
 def solve_path(res: MpcResult) -> str:
-    """``previous``, ``corrections`` or ``osqp``: how :class:`MpcController` found this step's plan."""
-    if res.iterations:
-        return "osqp"
-    return "corrections" if "found in" in res.osqp_status else "previous"
+    """``law``, ``previous``, ``corrections``, ``osqp`` or ``held``: how :class:`MpcController`
+    found this step's plan (``MpcResult.solved_by``)."""
+    return res.solved_by
 
 
 def _setpoint_step(sim: CoSimulation) -> None:

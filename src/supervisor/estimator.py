@@ -29,7 +29,9 @@ and the filter runs in predictor/corrector form::
     corrector:  xi(k|k)   = xi(k|k-1) + Kf (y(k) - Ca xi(k|k-1))
     predictor:  xi(k+1|k) = Aa xi(k|k) + Ba u(k)
 
-with u(k) the input actually applied over the sample that follows y(k). The a-priori estimation
+with u(k) the input actually applied over the sample that follows y(k). ``update`` does a predictor
+and a corrector as one product: [xi(k|k-1); xi(k|k); innovation] = M [xi(k-1|k-1); u(k-1); y(k)]
+with M = [[Aa, Ba, 0], [(I - Kf Ca) Aa, (I - Kf Ca) Ba, Kf], [-Ca Aa, -Ca Ba, I]]. The a-priori estimation
 error evolves as e(k+1|k) = Aa (I - Kf Ca) e(k|k-1); the constructor checks that this is stable.
 
 Offset-free estimation needs the augmented pair (Aa, Ca) detectable. At the disturbance integrators
@@ -417,7 +419,7 @@ class AugmentedKalmanFilter:
         self._prior = self._Aa @ self._posterior + self._Ba @ u_
         self._posterior = None
 
-    def update(self, y: ArrayLike, u_prev: ArrayLike) -> StateEstimate:
+    def update(self, y: ArrayLike, u_prev: ArrayLike, *, check_finite: bool = True) -> StateEstimate:
         """One sample: predict with the input applied since the last update, then correct with y.
 
         Parameters
@@ -427,14 +429,23 @@ class AugmentedKalmanFilter:
         u_prev : array_like, shape (m,)
             Input u(k-1) applied since the previous update (deviation) [m^3/s]; ignored on the
             first update after construction or :meth:`reset` (the prior is used as is).
+        check_finite : bool
+            Check that y and u_prev are finite (a ValueError, the filter unchanged, if not).
+            False skips the check, as scipy's ``check_finite``, for a caller that has just made
+            that check itself; a non-finite value then spoils the estimate.
 
         Returns
         -------
         StateEstimate
             x(k|k), eta(k|k) and the innovation.
         """
-        y_ = _vector(y, self._ny, "y", copy=False)
-        u_ = _vector(u_prev, self._m, "u_prev", copy=False)
+        if check_finite or type(y) is not np.ndarray or type(u_prev) is not np.ndarray:
+            y_ = _vector(y, self._ny, "y", copy=False)
+            u_ = _vector(u_prev, self._m, "u_prev", copy=False)
+        else:
+            y_, u_ = y, u_prev
+            if y_.shape != (self._ny,) or u_.shape != (self._m,):
+                raise ValueError(f"y must have shape ({self._ny},) and u_prev ({self._m},)")
         if self._posterior is None:  # the first sample: correct the prior as it is
             innov = y_ - self._Ca @ self._prior
             self._posterior = self._prior + self._K @ innov

@@ -89,7 +89,10 @@ one sample. Before that, ``step`` looks for the exact optimum by active sets
 triangular solve on a cached sparse LU), then primal-dual active-set corrections from that set
 shifted by one sample (a rate-limited transient: the plan's active rate bounds move about one
 sample per step), each set solved through a Schur complement on the last LU. A set whose
-solution passes the KKT check to ``KKT_TOL`` gives the optimum, and OSQP does not run.
+solution passes the KKT check to ``KKT_TOL`` gives the optimum, and OSQP does not run. A set that
+is optimal twice in a row gets an affine law (:class:`_AffineLaw`): for a constant reference the
+plan, its prediction, its cost and the KKT certificate are affine in [dx0, eta, r, u(-1), 1] on that
+set, so the next steps are one matrix-vector product and a check until the set changes.
 ``update_model`` replaces A and B (and optionally the operating point) through OSQP's
 matrix-value update on a fixed sparsity pattern (every structurally possible entry is stored).
 
@@ -135,7 +138,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from supervisor.estimator import AugmentedKalmanFilter
 from tanklab.enums import MpcStatus
 
-__all__ = ["SPARSE_FROM_HORIZON", "MpcConfig", "MpcController", "MpcModel", "MpcResult"]
+__all__ = ["SPARSE_FROM_HORIZON", "MpcConfig", "MpcController", "MpcModel", "MpcResult", "SolvedBy"]
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -278,6 +281,8 @@ _LAW_CACHE = 4
 _ONE = np.ones(1)
 
 _REPEATED = "skipped: the previous active set is optimal"
+
+SolvedBy = Literal["law", "previous", "corrections", "osqp", "held"]
 
 
 def _absmax(a: FloatArray) -> float:
@@ -942,6 +947,11 @@ class MpcResult:
         HELD steps in a row up to and including this one.
     inaccurate : int
         Total INACCURATE steps since construction or reset.
+    solved_by : str
+        How this step's plan was found: ``"law"`` (the affine law of the previous active set),
+        ``"previous"`` (the previous active set, solved on its factorisation), ``"corrections"``
+        (primal-dual active-set corrections), ``"osqp"`` (OSQP's tolerance ladder) or ``"held"``
+        (no solution: the shifted last plan).
     """
 
     u: FloatArray
@@ -958,6 +968,7 @@ class MpcResult:
     failures: int
     consecutive_failures: int
     inaccurate: int
+    solved_by: SolvedBy = "osqp"
 
 
 @dataclass
@@ -975,8 +986,7 @@ class _OsqpOutcome:
     active: tuple[BoolArray, BoolArray] | None = None
     """The active set (lower, upper) of the accepted solution: exact when certified or polished,
     OSQP's guess otherwise; the next step's first candidate."""
-    repeated: bool = False
-    """The previous step's active set was optimal again."""
+    solved_by: SolvedBy = "osqp"
 
 
 @dataclass
@@ -1078,6 +1088,7 @@ class MpcController:
         self._rate_rows = N if config.first_move_rate_limited else N - 1
         self._has_rate_rows = bool(np.any(np.isfinite(self._du_min)) or np.any(np.isfinite(self._du_max)))
         # where u(-1) is clipped to so that its rate window meets the input box [m^3/s]
+        self._symmetric_rates = bool(np.array_equal(self._du_min, -self._du_max))
         # the same as Python floats for the projection's per-move loops
         self._u_min_list, self._u_max_list = self._u_min.tolist(), self._u_max.tolist()
         self._du_min_list, self._du_max_list = self._du_min.tolist(), self._du_max.tolist()
@@ -1505,14 +1516,37 @@ class MpcController:
         -------
         MpcResult
         """
-        y_ = _vector(y, self._model.n_measured, "y", copy=False)
-        u_prev_ = _vector(u_prev, self._m, "u_prev", copy=False)  # read only, never kept
-        r_ = self._reference(r)
+        y_, u_prev_, r_ = self._step_inputs(y, u_prev, r)
         y_dev = y_ - self._y_op
         if self._est_subset:
             y_dev = y_dev[self._est_rows]
-        est = self._estimator.update(y_dev, u_prev_ - self._model.u_op)
+        # y_dev and the input deviation are finite: made of the vectors just checked
+        est = self._estimator.update(y_dev, u_prev_ - self._model.u_op, check_finite=False)
         return self._solve(est.x, est.disturbance, r_, u_prev_)
+
+    def _step_inputs(
+        self, y: ArrayLike, u_prev: ArrayLike, r: ArrayLike
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """y, u(-1) and r checked (as :func:`_vector` and :meth:`_reference`; only read, never
+        kept, so float vectors come back as they are). The usual case, three float vectors of
+        the right shapes, is checked for finite values in one pass."""
+        ny, m, nz = self._model.n_measured, self._m, self._nz
+        if (
+            type(y) is np.ndarray
+            and type(u_prev) is np.ndarray
+            and type(r) is np.ndarray
+            and y.dtype == u_prev.dtype == r.dtype == np.float64
+            and y.shape == (ny,)
+            and u_prev.shape == (m,)
+            and r.shape == (nz,)
+            and np.isfinite(np.concatenate((y, u_prev, r))).all()
+        ):
+            return y, u_prev, r
+        return (
+            _vector(y, ny, "y", copy=False),
+            _vector(u_prev, m, "u_prev", copy=False),
+            self._reference(r),
+        )
 
     def plan(
         self, x: ArrayLike, r: ArrayLike, u_prev: ArrayLike, disturbance: ArrayLike | None = None
@@ -1578,14 +1612,14 @@ class MpcController:
             sol = self._kkt.solve(q, lo, up, *cand)
             if sol is not None and sol.certified:
                 out.status = _REPEATED
-                out.x, out.y, out.accurate, out.active, out.repeated = sol.x, sol.y, True, cand, True
+                out.x, out.y, out.accurate, out.active, out.solved_by = sol.x, sol.y, True, cand, "previous"
                 return out
             shift = self._shift_y
             fix = self._kkt.correct(q, lo, up, cand[0][shift], cand[1][shift], PDAS_MAX_SETS)
             if fix.solution is not None:
                 out.status = f"skipped: optimal active set found in {fix.sets} exact solves"
                 out.x, out.y, out.accurate = fix.solution.x, fix.solution.y, True
-                out.active = (fix.lower, fix.upper)
+                out.active, out.solved_by = (fix.lower, fix.upper), "corrections"
                 return out
         self._solver.update(q=q, l=lo, u=up)
         if self._ws_x is None or self._ws_y is None:
@@ -1643,7 +1677,7 @@ class MpcController:
         r_abs = np.broadcast_to(r, (self._N, self._nz))
         q, lo, up = self._qp_vectors(dx0, eta, r_abs, u_prev)
         out = self._solve_qp(q, lo, up)
-        self._set_active(out.active, build_law=out.repeated and constant_r)
+        self._set_active(out.active, build_law=out.solved_by == "previous" and constant_r)
         sol_x, sol_y = out.x, out.y
         model = self._model
         N, m = self._N, self._m
@@ -1660,6 +1694,7 @@ class MpcController:
             self._ws_y = sol_y[self._shift_y]
         else:
             status = MpcStatus.HELD
+            out.solved_by = "held"
             self._failures += 1
             self._consecutive += 1
             if self._plan is not None:
@@ -1701,7 +1736,8 @@ class MpcController:
             # the projection moves a certified plan by rounding errors at most, but the contract
             # is the prediction and cost of the plan returned
             z_pred = self._predict_z(dx0, eta, plan)
-            return self._result(plan, z_pred, MpcStatus.SOLVED, _OsqpOutcome(_REPEATED), dx0, eta, r, u_prev)
+            outcome = _OsqpOutcome(_REPEATED, solved_by="law")
+            return self._result(plan, z_pred, MpcStatus.SOLVED, outcome, dx0, eta, r, u_prev)
         z_pred = out[ends[0] : ends[1]].reshape(N, nz)
         w = out[ends[1] : ends[2]]
         if ends[3] > ends[2] and out[ends[2] : ends[3]].max() > 0.0:
@@ -1709,7 +1745,7 @@ class MpcController:
         else:
             slack, violation = 0.0, 0.0
         cost = 0.5 * float(np.vdot(w, w)) + slack
-        status = _OsqpOutcome(_REPEATED)
+        status = _OsqpOutcome(_REPEATED, solved_by="law")
         return self._make_result(plan, z_pred, MpcStatus.SOLVED, status, dx0, eta, cost, violation)
 
     def _result(
@@ -1755,6 +1791,7 @@ class MpcController:
             failures=self._failures,
             consecutive_failures=self._consecutive,
             inaccurate=self._inaccurate,
+            solved_by=out.solved_by,
         )
 
     # ------------------------------------------------------------------------------------------
@@ -1886,7 +1923,10 @@ class MpcController:
             if self._config.first_move_rate_limited:
                 out[0] = self._first_move(out[0].tolist(), u_prev.tolist())
             d = out[1:] - out[:-1]
-            broken = (d < dmin) | (d > dmax)
+            if self._symmetric_rates:  # |d| <= du_max is d >= du_min and d <= du_max, exactly
+                broken = np.abs(d) > dmax
+            else:
+                broken = (d < dmin) | (d > dmax)
             if broken.any():
                 out = self._project_moves(out, int(broken.any(axis=1).argmax()) + 1)
         return out, bool((out != plan).any())

@@ -137,6 +137,11 @@ def test_schur_solves_equal_a_dense_kkt_solve(seed: int, moves: int) -> None:
     base = rng.random(nc) < 0.3
     lo, up = -np.ones(nc), np.ones(nc)
     none = np.zeros(nc, dtype=bool)
+    base_rows = A.toarray()[np.flatnonzero(base)]
+    if np.linalg.matrix_rank(base_rows) < base_rows.shape[0]:
+        # dependent base rows: SuperLU may still factor the (numerically) singular matrix, and
+        # bordering onto that is meaningless (the solves' KKT residual check refuses the result)
+        return
     if not isinstance(qp._factor(base), _LuFactor):  # the first set becomes the LU
         return  # a singular random base: nothing to border onto
     target = base.copy()
@@ -151,8 +156,20 @@ def test_schur_solves_equal_a_dense_kkt_solve(seed: int, moves: int) -> None:
     assert factor is not None
     b = rng.normal(size=rows.size)
     v, y = factor.solve(q, b)
+    sol = np.concatenate([v, y])
     ref = _dense_kkt(P, A, q, b, rows)
-    assert np.max(np.abs(np.concatenate([v, y]) - ref)) <= 1e-9 * max(1.0, np.max(np.abs(ref)))
+    # a backward-stable answer: the bordered solve's normwise backward error in the dense KKT
+    # system is at rounding level (the forward error then follows the system's condition number;
+    # some random sets have one of 1e6 and more, where numpy's own solve is no better)
+    P_full = P.toarray() + np.triu(P.toarray(), 1).T
+    Aw = A.toarray()[rows]
+    K = np.block([[P_full, Aw.T], [Aw, np.zeros((rows.size, rows.size))]])
+    rhs = np.concatenate([-q, b])
+    scale = np.abs(K).sum(axis=1).max() * np.abs(sol).max() + np.abs(rhs).max()
+    assert np.abs(K @ sol - rhs).max() <= 1e-14 * scale
+    assert np.max(np.abs(sol - ref)) <= 1e-9 * max(1.0, np.max(np.abs(ref))) * max(
+        1.0, np.linalg.cond(K) / 1e4
+    )
 
 
 @settings(max_examples=60, deadline=None)
@@ -216,7 +233,7 @@ def test_a_transient_is_solved_by_corrections_and_matches_osqp() -> None:
         r = np.array([0.45, 0.2]) if k < 3 else np.array([0.5, 0.17])
         res = ctrl.plan(x, r, u_prev)
         assert res.status == MpcStatus.SOLVED
-        if "found in" in res.osqp_status:
+        if res.solved_by == "corrections":
             corrected += 1
             check._reset_runtime_state()
             ref = check.plan(x, r, u_prev)
