@@ -1712,7 +1712,8 @@ class MpcController:
         if status != MpcStatus.HELD or self._plan is not None:
             self._plan = plan  # the last safe plan (a held u(-1) is not one)
         z_pred = self._predict_z(dx0, eta, plan)
-        return self._result(plan, z_pred, status, out, dx0, eta, r_abs, u_prev)
+        objective, violation = self._objective(plan, z_pred, r_abs, u_prev, eta)
+        return self._make_result(plan, z_pred, status, out, dx0, eta, objective, violation)
 
     def _law_step(
         self,
@@ -1736,33 +1737,17 @@ class MpcController:
             # the projection moves a certified plan by rounding errors at most, but the contract
             # is the prediction and cost of the plan returned
             z_pred = self._predict_z(dx0, eta, plan)
-            outcome = _OsqpOutcome(_REPEATED, solved_by="law")
-            return self._result(plan, z_pred, MpcStatus.SOLVED, outcome, dx0, eta, r, u_prev)
-        z_pred = out[ends[0] : ends[1]].reshape(N, nz)
-        w = out[ends[1] : ends[2]]
-        if ends[3] > ends[2] and out[ends[2] : ends[3]].max() > 0.0:
-            slack, violation = self._slack(z_pred)
+            cost, violation = self._objective(plan, z_pred, r, u_prev, eta)
         else:
-            slack, violation = 0.0, 0.0
-        cost = 0.5 * float(np.vdot(w, w)) + slack
-        status = _OsqpOutcome(_REPEATED, solved_by="law")
-        return self._make_result(plan, z_pred, MpcStatus.SOLVED, status, dx0, eta, cost, violation)
-
-    def _result(
-        self,
-        plan: FloatArray,
-        z_pred: FloatArray,
-        status: MpcStatus,
-        out: _OsqpOutcome,
-        dx0: FloatArray,
-        eta: FloatArray,
-        r: FloatArray,
-        u_prev: FloatArray,
-    ) -> MpcResult:
-        """The step's result. ``plan`` (also kept as the last plan), ``z_pred`` and ``eta`` are
-        this step's own arrays, handed out read-only."""
-        objective, violation = self._objective(plan, z_pred, r, u_prev, eta)
-        return self._make_result(plan, z_pred, status, out, dx0, eta, objective, violation)
+            z_pred = out[ends[0] : ends[1]].reshape(N, nz)
+            w = out[ends[1] : ends[2]]
+            if ends[3] > ends[2] and out[ends[2] : ends[3]].max() > 0.0:
+                slack, violation = self._slack(z_pred)
+            else:
+                slack, violation = 0.0, 0.0
+            cost = 0.5 * float(np.vdot(w, w)) + slack
+        outcome = _OsqpOutcome(_REPEATED, solved_by="law")
+        return self._make_result(plan, z_pred, MpcStatus.SOLVED, outcome, dx0, eta, cost, violation)
 
     def _make_result(
         self,
@@ -1775,6 +1760,8 @@ class MpcController:
         objective: float,
         violation: float,
     ) -> MpcResult:
+        """The step's result. ``plan`` (also kept as the last plan), ``z_pred`` and ``eta`` are
+        this step's own arrays, handed out read-only."""
         planned = _readonly(plan)
         return MpcResult(
             u=planned[0],
