@@ -280,6 +280,10 @@ _LAW_CACHE = 4
 
 _ONE = np.ones(1)
 
+#: Margin [fraction of the range] by which an affine law's plan must clear its inactive input and
+#: rate bounds: far above the rounding of the law's product, so the plan needs no projection.
+_PLAN_MARGIN = 1e-12
+
 _REPEATED = "skipped: the previous active set is optimal"
 
 SolvedBy = Literal["law", "previous", "corrections", "osqp", "held"]
@@ -666,14 +670,22 @@ class _ActiveSetQp:
         return _Correction(None, lower, upper, sets)
 
     def affine(
-        self, lower: BoolArray, upper: BoolArray, Qm: FloatArray, Lm: FloatArray, Um: FloatArray
+        self,
+        lower: BoolArray,
+        upper: BoolArray,
+        Qm: FloatArray,
+        Lm: FloatArray,
+        Um: FloatArray,
+        strict: BoolArray | None = None,
     ) -> _AffineKkt | None:
         """The solution on W = lower | upper for every parameter (see :class:`_AffineKkt`).
 
         ``Qm`` (nv, p), ``Lm`` and ``Um`` (nc, p): the QP's q, l and u as affine maps of the
         parameters (last column the constant; an infinite bound has an infinite constant and a
         zero row). Each column is one solve on the set's factorisation and one step of iterative
-        refinement. None if the set is singular or bounds an active row at infinity.
+        refinement. The inactive rows in ``strict`` must hold with a margin of ``_PLAN_MARGIN``
+        instead of the tolerance ``KKT_TOL`` (so that rounding cannot break them). None if the
+        set is singular or bounds an active row at infinity.
         """
         act = lower | upper
         factor = self._factor(act)
@@ -704,12 +716,14 @@ class _ActiveSetQp:
         up_rows = free & np.isfinite(Um[:, -1])
         checks = np.vstack(
             [
-                Z[lo_rows] - Lm[lo_rows] + tol,
-                Um[up_rows] - Z[up_rows] + tol,
+                Z[lo_rows] - Lm[lo_rows],
+                Um[up_rows] - Z[up_rows],
                 -Y[lower & ~eq] + tol,  # y <= 0 on an active lower bound
                 Y[upper & ~eq] + tol,
             ]
         )
+        slack = np.where(strict, -_PLAN_MARGIN, KKT_TOL) if strict is not None else np.full(self._nc, KKT_TOL)
+        checks[: lo_rows.sum() + up_rows.sum(), -1] += np.concatenate([slack[lo_rows], slack[up_rows]])
         return _AffineKkt(X, Y, checks, residual)
 
     def guess(
@@ -1011,6 +1025,9 @@ class _AffineLaw:
 
     G: FloatArray
     ends: tuple[int, int, int, int]
+    exact_plan: bool
+    """No rate row is active: the plan meets every input and rate bound as computed (inactive
+    ones by ``_PLAN_MARGIN``, active input bounds exactly), so it needs no projection."""
     xy: FloatArray
     """(nv + nc, p): the scaled QP's primal and dual solution, for OSQP's warm start."""
 
@@ -1731,7 +1748,7 @@ class MpcController:
         self._consecutive = 0
         ends = law.ends
         raw = out[: ends[0]].reshape(N, m)
-        plan, moved = self._project(raw, u_prev)
+        plan, moved = (raw, False) if law.exact_plan else self._project(raw, u_prev)
         self._plan = plan
         if moved:
             # the projection moves a certified plan by rounding errors at most, but the contract
@@ -1840,14 +1857,25 @@ class MpcController:
     def _make_law(self, lower: BoolArray, upper: BoolArray) -> _AffineLaw | None:
         """The affine law of the active set (lower, upper); None if the set is singular."""
         Qm, Lm, Um = self._vector_maps()
-        kkt = self._kkt.affine(lower, upper, Qm, Lm, Um)
+        N, m, n, ne, nz = self._N, self._m, self._n, self._n_eta, self._nz
+        # input and rate rows: inactive ones must clear their bounds by _PLAN_MARGIN, so that a
+        # plan with no active rate row is feasible as computed and skips the projection
+        box = slice(self._row_u, self._row_u + N * m)
+        moves = slice(self._row_rate, self._row_zlo)
+        strict = np.zeros(self._nc, dtype=bool)
+        strict[box] = strict[moves] = True
+        kkt = self._kkt.affine(lower, upper, Qm, Lm, Um, strict)
         if kkt is None:
             return None
-        N, m, n, ne, nz = self._N, self._m, self._n, self._n_eta, self._nz
         p = Qm.shape[1]
         u_t = kkt.x[self._u_off : self._u_off + N * m]
         plan = u_t * np.tile(self._su, N)[:, None]
         plan[:, -1] += np.tile(self._model.u_op, N)
+        # a move on an active input bound is that bound, exactly (not u_op + s_u u~ rounded)
+        for active, bound in ((lower[box], self._u_min), (upper[box], self._u_max)):
+            at = np.flatnonzero(active)
+            plan[at] = 0.0
+            plan[at, -1] = np.tile(bound, N)[at]
         pick = np.eye(p)
         z = self._scaled_z(pick[:n], pick[n : n + ne], u_t) * np.tile(self._sz, N)[:, None]
         z[:, -1] += np.tile(self._z_op, N)
@@ -1890,6 +1918,7 @@ class MpcController:
         return _AffineLaw(
             G=np.ascontiguousarray(np.vstack(rows)),
             ends=(int(ends[0]), int(ends[1]), int(ends[2]), int(ends[4])),
+            exact_plan=not (lower[moves] | upper[moves]).any(),
             xy=np.vstack([kkt.x, kkt.y]),
         )
 

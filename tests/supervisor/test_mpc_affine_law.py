@@ -71,6 +71,10 @@ def test_a_law_step_equals_the_exact_solve_of_the_same_qp(
     # the law answered exactly when the previous set is still optimal (the twin says so)
     assert (fast.solved_by == "law") == (slow.solved_by == "previous")
     assert (ctrl._ws_law is not None) == (fast.solved_by == "law")
+    if fast.solved_by == "law":
+        # the law's plan meets the input and rate bounds as computed: projecting it moves nothing
+        projected, moved = ctrl._project(fast.planned_u.copy(), u2)
+        assert not moved and np.array_equal(projected, fast.planned_u)
 
 
 def test_the_law_path_is_taken_near_a_steady_state_and_its_warm_start_is_the_solution() -> None:
