@@ -1950,31 +1950,28 @@ class MpcController:
     def _first_move(self, u0: list[float], u_prev: list[float]) -> list[float]:
         """u0 clipped to the rate window of u(-1), itself first clipped to where that window
         meets the input box (u0 already in the box; m numbers, in Python floats)."""
-        umin, umax = self._u_min_list, self._u_max_list
-        dmin, dmax = self._du_min_list, self._du_max_list
         lo_prev, hi_prev = self._u_prev_min_list, self._u_prev_max_list
-        out = []
-        for j, v in enumerate(u0):
-            base = min(max(u_prev[j], lo_prev[j]), hi_prev[j])
-            lo = max(umin[j], base + dmin[j])
-            hi = min(umax[j], base + dmax[j])
-            out.append(min(max(v, lo), hi))
-        return out
+        base = [min(max(v, lo_prev[j]), hi_prev[j]) for j, v in enumerate(u_prev)]
+        return self._clamp_move(u0, base)
 
     def _project_moves(self, plan: FloatArray, first: int) -> FloatArray:
-        """Clip moves ``first``..Np-1 in turn to the rate window of the move before, within the
-        input bounds (the same floating-point operations as ``np.minimum(np.maximum(...))``)."""
+        """Clip moves ``first``..Np-1 in turn to the rate window of the move before."""
         rows = plan.tolist()
+        for k in range(first, len(rows)):
+            rows[k] = self._clamp_move(rows[k], rows[k - 1])
+        return np.array(rows)
+
+    def _clamp_move(self, move: list[float], prev: list[float]) -> list[float]:
+        """``move`` clipped to the rate window of ``prev``, within the input bounds (Python floats;
+        the same floating-point operations as ``np.minimum(np.maximum(...))``)."""
         umin, umax = self._u_min_list, self._u_max_list
         dmin, dmax = self._du_min_list, self._du_max_list
-        prev = rows[first - 1]
-        for row in rows[first:]:
-            for j, v in enumerate(row):
-                lo = max(umin[j], prev[j] + dmin[j])
-                hi = min(umax[j], prev[j] + dmax[j])
-                row[j] = min(max(v, lo), hi)
-            prev = row
-        return np.array(rows)
+        out = []
+        for j, v in enumerate(move):
+            lo = max(umin[j], prev[j] + dmin[j])
+            hi = min(umax[j], prev[j] + dmax[j])
+            out.append(min(max(v, lo), hi))
+        return out
 
     def _predict_z(self, dx0: FloatArray, eta: FloatArray, plan: FloatArray) -> FloatArray:
         """z(1..Np) [m] of the linear model for the plan (exact prediction, any formulation)."""
