@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
@@ -165,8 +165,8 @@ class _Interlock:
 
 @dataclass
 class _Frozen:
-    last: FloatArray
-    repeats: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    last: list[float]  # the previous scan's readings
+    repeats: list[int]  # consecutive scans each reading has repeated the one before
 
 
 @dataclass
@@ -213,23 +213,33 @@ class PlcProgram:
         self.n_pumps = len(pumps)
         self.scan_count = 0
         self.t_s = 0.0
+        # Constants per pump and per tank, as arrays (read by other modules and tests) ...
         self.pump_min = np.array([p.command_min for p in site.plant.pumps], dtype=float)
         self.pump_max = np.array([p.command_max for p in site.plant.pumps], dtype=float)
         self.pump_tank = np.array([tanks.index(p.feeds) for p in site.plant.pumps], dtype=np.int64)
-        self.commands = np.array([p.initial_command for p in site.plant.pumps], dtype=float)
         self.tr_range = np.array([t.transmitter_range() for t in site.plant.tanks], dtype=float)
         sw = [t.switch_levels() for t in site.plant.tanks]
         self.high_m = np.array([s.high_m for s in sw])
         self.low_m = np.array([s.low_m for s in sw])
-        self.levels_m = np.full(self.n_tanks, math.nan)
-        self.good = np.zeros(self.n_tanks, dtype=bool)
-        self.last_good_m = np.zeros(self.n_tanks)
-        self._raw_m = np.full(self.n_tanks, math.nan)  # delivered, finite readings (for interlocks)
+        # ... and as Python floats for the scan, which works per tank and per pump: with a handful
+        # of each, numpy's per-call overhead on 3-element arrays costs more than the loops.
+        self._pump_min: list[float] = self.pump_min.tolist()
+        self._pump_max: list[float] = self.pump_max.tolist()
+        self._pump_tank: list[int] = self.pump_tank.tolist()
+        self._tr_range: list[tuple[float, float]] = [(lo, hi) for lo, hi in self.tr_range.tolist()]
+        # Per-tank and per-pump state as lists (the array attributes are properties built from them)
+        n = self.n_tanks
+        self._shape = (n,)
+        self._commands: list[float] = np.array(
+            [p.initial_command for p in site.plant.pumps], dtype=float
+        ).tolist()
+        self._levels_m: list[float] = [math.nan] * n  # readings used this scan; NaN where bad
+        self._good: list[bool] = [False] * n
+        self._last_good_m: list[float] = [0.0] * n
+        self._raw_m: list[float] = [math.nan] * n  # delivered, finite readings (for interlocks)
         self.io_healthy = False
         self.pv_frozen_scans = plc.pv_frozen_scans
-        self._frozen = _Frozen(
-            last=np.full(self.n_tanks, math.nan), repeats=np.zeros(self.n_tanks, dtype=np.int64)
-        )
+        self._frozen = _Frozen(last=[math.nan] * n, repeats=[0] * n)
         self.watchdog = _Watchdog(
             timeout_s=plc.watchdog.timeout_s if watchdog_timeout_s is None else watchdog_timeout_s,
             good_scans_needed=plc.watchdog.good_scans_to_accept,
@@ -276,6 +286,29 @@ class PlcProgram:
             )
         self._pending_heartbeat: int | None = None
         self._build_blocks()
+
+    # ---- state after the last scan (arrays built on request) -----------------------------
+
+    @property
+    def levels_m(self) -> FloatArray:
+        """(n_tanks,) readings the last scan used [m], NaN where bad (a new array)."""
+        return np.array(self._levels_m, dtype=float)
+
+    @property
+    def good(self) -> BoolArray:
+        """(n_tanks,) quality of each reading in the last scan (a new array)."""
+        return np.array(self._good, dtype=bool)
+
+    @property
+    def last_good_m(self) -> FloatArray:
+        """(n_tanks,) each transmitter's last good reading [m], 0 before the first (a new array)."""
+        return np.array(self._last_good_m, dtype=float)
+
+    @property
+    def commands(self) -> FloatArray:
+        """(n_pumps,) the last scan's pump commands, pump units (initial commands before the first
+        scan; a new array)."""
+        return np.array(self._commands, dtype=float)
 
     # ---- construction -------------------------------------------------------------------
 
@@ -593,8 +626,8 @@ class PlcProgram:
         """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""
         reset = []
         for il in self.interlocks:
-            level = self.levels_m[il.tank]
-            if il.tripped and self.good[il.tank] and level < il.reset_below_m:
+            level = self._levels_m[il.tank]
+            if il.tripped and self._good[il.tank] and level < il.reset_below_m:
                 il.tripped = False
                 reset.append(il.tank_name)
         return reset
@@ -614,7 +647,7 @@ class PlcProgram:
         """
         levels = np.asarray(inputs.levels_m, dtype=float)
         delivered = np.asarray(inputs.good, dtype=bool)
-        if levels.shape != (self.n_tanks,) or delivered.shape != (self.n_tanks,):
+        if levels.shape != self._shape or delivered.shape != self._shape:
             raise ValueError(  # checked before anything changes: a refused scan leaves no trace
                 f"scan inputs need {self.n_tanks} levels and qualities, got shapes "
                 f"{levels.shape} and {delivered.shape}"
@@ -624,12 +657,13 @@ class PlcProgram:
             self._fall_back()
         else:
             self._apply_staged_gains()
-        self._read_inputs(levels, delivered, bool(inputs.io_healthy))
+        self._read_inputs(levels.tolist(), delivered.tolist(), bool(inputs.io_healthy))
         self._execute_blocks()
-        forced = self._apply_interlocks()
-        self._write_outputs(forced)
+        self._write_outputs(self._apply_interlocks())
         self.scan_count += 1
-        return ScanOutputs(commands=self.commands.copy(), values=self.values() if publish else {})
+        return ScanOutputs(
+            commands=np.array(self._commands, dtype=float), values=self.values() if publish else {}
+        )
 
     def _set_pid_gains(self) -> None:
         for group in self.pid_groups:
@@ -670,10 +704,15 @@ class PlcProgram:
         return expired
 
     def _fall_back(self) -> None:
-        """Supervisor lost: staged gains dropped, supervisor gains -> FALLBACK, REMOTE -> AUTO."""
+        """Supervisor lost: staged gains dropped, supervisor gains -> FALLBACK, REMOTE -> AUTO.
+
+        Runs every scan while the supervisor is away (the co-simulation without one: always), so
+        each loop is only read unless it has something to undo.
+        """
         changed = False
         for lp in self.loops:
-            lp.staged = None
+            if lp.staged is not None:
+                lp.staged = None
             if lp.source is GainSource.SUPERVISOR:
                 lp.applied = lp.fixed if self.fallback == "fixed" else lp.last_accepted
                 lp.source = GainSource.FALLBACK
@@ -683,42 +722,43 @@ class PlcProgram:
         if changed:
             self._set_pid_gains()
 
-    def _read_inputs(self, levels: FloatArray, delivered: BoolArray, io_healthy: bool) -> None:
-        # Per tank on Python floats: with a handful of tanks, the dozen numpy calls on 3-element
-        # arrays this used to be cost more than the loop (the scan's cost matters to the
-        # co-simulation). Same comparisons, same results.
+    def _read_inputs(self, levels: list[float], delivered: list[bool], io_healthy: bool) -> None:
+        # Per tank on Python floats, the state updated in place (see __init__).
         self.io_healthy = io_healthy
         frozen_n = self.pv_frozen_scans
-        flags, ranges = delivered.tolist(), self.tr_range.tolist()
-        last_good = self.last_good_m.tolist()
-        last, repeats = self._frozen.last.tolist(), self._frozen.repeats.tolist()
-        raw, good, used = [], [], []
-        for k, x in enumerate(levels.tolist()):
-            delivered_k = flags[k] and io_healthy and math.isfinite(x)
-            raw.append(x if delivered_k else math.nan)
-            ok = delivered_k and ranges[k][0] <= x <= ranges[k][1]
+        ranges, raw, good, used, last_good = (
+            self._tr_range,
+            self._raw_m,
+            self._good,
+            self._levels_m,
+            self._last_good_m,
+        )
+        last, repeats = self._frozen.last, self._frozen.repeats
+        for k, x in enumerate(levels):
+            delivered_k = delivered[k] and io_healthy and math.isfinite(x)
+            raw[k] = x if delivered_k else math.nan
+            lo, hi = ranges[k]
+            ok = delivered_k and lo <= x <= hi
             if frozen_n > 0:
                 repeats[k] = repeats[k] + 1 if x == last[k] else 0
                 ok = ok and repeats[k] < frozen_n
-            good.append(ok)
-            used.append(x if ok else math.nan)
+            good[k] = ok
             if ok:
-                last_good[k] = x
+                used[k] = last_good[k] = x
+            else:
+                used[k] = math.nan
         if frozen_n > 0:
-            self._frozen.repeats = np.array(repeats, dtype=np.int64)
-            self._frozen.last = levels.copy()
-        self._raw_m = np.array(raw, dtype=float)
-        self.levels_m = np.array(used, dtype=float)
-        self.good = np.array(good, dtype=bool)
-        self.last_good_m = np.array(last_good, dtype=float)
+            self._frozen.last = levels  # the scan's own list (tolist of the input)
 
     def _execute_blocks(self) -> None:
-        good, levels = self.good.tolist(), self.levels_m.tolist()
+        good, levels = self._good, self._levels_m
         for lp in self.loops:
-            lp.pv_bad = not good[lp.tank]
-            lp.pv_m = math.nan if lp.pv_bad else levels[lp.tank]
-            if not lp.pv_bad:
-                lp.pv_last_good_m = lp.pv_m
+            if good[lp.tank]:
+                lp.pv_bad = False
+                lp.pv_m = lp.pv_last_good_m = levels[lp.tank]
+            else:
+                lp.pv_bad = True
+                lp.pv_m = math.nan
         for group in self.pid_groups:
             if group.scalar:  # the PID's single-loop fast path: floats, no arrays
                 lp = group.loops[0]
@@ -769,9 +809,10 @@ class PlcProgram:
             block.track(mv)
         lp.mv = mv
 
-    def _apply_interlocks(self) -> list[bool]:
-        """Latch trips; return which pumps (pump order) are forced to their lowest command this scan."""
-        raw = self._raw_m.tolist()
+    def _apply_interlocks(self) -> list[bool] | None:
+        """Latch trips; return which pumps (pump order) are forced to their lowest command this
+        scan (None: none)."""
+        raw = self._raw_m
         any_tripped = False
         for il in self.interlocks:
             # Fail-safe: any delivered finite reading counts, even over-range or frozen.
@@ -779,15 +820,15 @@ class PlcProgram:
                 il.tripped = True
             any_tripped = any_tripped or il.tripped
         if not any_tripped:  # the usual scan: no pump forced, no block to tell
-            return [False] * self.n_pumps
-        tripped = np.zeros(self.n_tanks, dtype=bool)
+            return None
+        tripped = [False] * self.n_tanks
         for il in self.interlocks:
-            tripped[il.tank] |= il.tripped
-        forced: list[bool] = tripped[self.pump_tank].tolist()
+            tripped[il.tank] = tripped[il.tank] or il.tripped
+        forced = [tripped[tank] for tank in self._pump_tank]
         for lp in self.loops:
             if not forced[lp.pump]:
                 continue
-            lp.mv = float(self.pump_min[lp.pump])
+            lp.mv = self._pump_min[lp.pump]
             held = min(max(lp.mv, lp.mv_min), lp.mv_max)
             if lp.pid is not None and lp.pid_index is not None:
                 lp.pid.track(lp.pid_index, held)
@@ -805,18 +846,13 @@ class PlcProgram:
                 lp.remote_mv = held
         return forced
 
-    def _write_outputs(self, forced: list[bool]) -> None:
-        commands = self.commands.tolist()
+    def _write_outputs(self, forced: list[bool] | None) -> None:
+        commands, lows, highs = self._commands, self._pump_min, self._pump_max
         for lp in self.loops:
             commands[lp.pump] = lp.mv
-        lows, highs = self.pump_min.tolist(), self.pump_max.tolist()
-        self.commands = np.array(
-            [
-                lo if f else min(max(c, lo), hi)
-                for c, f, lo, hi in zip(commands, forced, lows, highs, strict=True)
-            ],
-            dtype=float,
-        )
+        for k, c in enumerate(commands):
+            lo = lows[k]
+            commands[k] = lo if forced is not None and forced[k] else min(max(c, lo), highs[k])
 
     # ---- publishing ---------------------------------------------------------------------
 
@@ -850,9 +886,9 @@ class PlcProgram:
         v["PLC.Alarms.IoFault"] = not self.io_healthy
         v["PLC.Alarms.SupervisorLost"] = bool(self.watchdog.ever_alive and not self.watchdog.alive)
         for i, name in enumerate(self.site.tank_names):
-            level = float(self.levels_m[i])
-            ok = bool(self.good[i])
-            v[f"PLC.IO.LT{name[1:]}.PV"] = float(self.last_good_m[i])
+            level = self._levels_m[i]
+            ok = self._good[i]
+            v[f"PLC.IO.LT{name[1:]}.PV"] = self._last_good_m[i]
             v[f"PLC.IO.LT{name[1:]}.Good"] = ok
             v[f"PLC.Alarms.{name}H"] = bool(ok and level >= self.high_m[i])
             v[f"PLC.Alarms.{name}L"] = bool(ok and level <= self.low_m[i])
