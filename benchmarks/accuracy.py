@@ -4,7 +4,7 @@ The guard (docs/mpc.md, architecture "Accuracy before speed"): closed-loop IAE w
 high-accuracy reference solver on the same scenario. The reference is the test suite's own:
 ``tests/supervisor/test_mpc.py``'s ``ReferenceController`` (the same filter, the same QP written
 in unscaled SI deviations and solved by cvxpy + CLARABEL at tolerances 1e-12) and its
-``closed_loop`` (the nonlinear three-tank plant of the OPC UA MPC paper, RK4 at 0.5 s sub-steps).
+``closed_loop`` (the nonlinear three-tank plant of the OPC UA MPC paper, RK4 with its automatic sub-steps).
 So the benchmark and the test measure one thing. Scenarios: the docs/mpc.md accuracy table's
 four (h1 step +5 cm with rate 1e-6; two setpoints with rate 1e-5; the paper-literal step; a T1
 leak with rate 1e-5), each with the condensed and the sparse QP.

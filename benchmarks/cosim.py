@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import cProfile
 import gc
+import math
 import pstats
 import time
 from collections.abc import Callable, Sequence
@@ -22,6 +23,8 @@ from typing import Literal
 
 from benchmarks.common import ENERGIES, ROOT, SCENARIO_DURATION_S, SCENARIO_STEP_AT_S, SCENARIO_STEP_M, load
 from benchmarks.procs import CpuMeter
+from plant_sim.integrate import rk4_substep_s
+from plant_sim.models import TankNetwork
 from tankctl.cosim import CoSimulation
 
 Mode = Literal["ADVISORY", "MPC"] | None
@@ -92,7 +95,7 @@ def hotspots(prof: cProfile.Profile, top: int = 8) -> tuple[list[HotSpot], float
 
 PARTS = {
     "plant integration (`plant_sim.integrate.step_rk4`)": ("integrate.py", "step_rk4"),
-    "PID blocks (`plc_emulator.pid.Pid.step`)": ("pid.py", "step"),
+    "PID blocks (`plc_emulator.pid.Pid.step_siso`, the single-loop path)": ("pid.py", "step_siso"),
     "PLC scan (`PlcProgram.scan`, PID blocks included)": ("program.py", "scan"),
     "transmitters (`TransmitterBank.read`)": ("sensors.py", "read"),
     "trace (`CoSimulation._record`)": ("cosim.py", "_record"),
@@ -126,6 +129,16 @@ def profile_top(run: Callable[[], object], top: int = 8) -> tuple[list[HotSpot],
         prof.disable()
     spots, total = hotspots(prof, top)
     return spots, total, part_shares(prof)
+
+
+def plant_substeps() -> tuple[int, float]:
+    """How the benchmark's plant integrates one scan: (RK4 steps, their length [s]) away from the
+    orifice law's non-smooth points (:func:`plant_sim.integrate.step_rk4`'s automatic sub-step)."""
+    site = load(ENERGIES)
+    assert site.plc is not None
+    ts = site.plc.scan_period_s
+    steps = max(1, math.ceil(ts / rk4_substep_s(TankNetwork.from_config(site.plant)) - 1e-9))
+    return steps, ts / steps
 
 
 def run_one(mode: Mode, duration_s: float) -> tuple[float, int]:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from benchmarks.accuracy import GuardResult
 from benchmarks.common import Goal, Summary, fmt
-from benchmarks.cosim import CosimResult, HotSpot
+from benchmarks.cosim import CosimResult, HotSpot, plant_substeps
 from benchmarks.mpc import (
     CVXPY_DEFAULT,
     CVXPY_OSQP,
@@ -613,8 +613,8 @@ def _cosim_section(rep: Report) -> list[str]:
         "## 2. Co-simulation speed",
         "",
         "`CoSimulation(load_site('configs/three_tank_energies_sim.yaml'), supervisor_mode=...)` "
-        "(the default config: 1 s scans; the plant's RK4 with its automatic sub-step, 0.5 s here, "
-        "docs/plant.md), the benchmark scenario: "
+        "(the default config: 1 s scans; the plant's RK4 with its automatic sub-step, "
+        f"{fmt(plant_substeps()[1])} s here, docs/plant.md), the benchmark scenario: "
         "1000 s of model time, LIC1's setpoint +0.05 m at 10 s. Wall time of `run` (construction "
         "excluded), repeated; real-time factor = 1000 s / median wall time. ADVISORY (the default "
         "config's supervisor mode: shadow MPC at Np = 10 + RLS every scan) is shown because it is "
@@ -674,7 +674,7 @@ def _cosim_reading(rep: Report) -> list[str]:
         return []
     per_scan = 1e3 * Summary.of(pid.wall_s).median / pid.scans
     rows = [[label, fmt(100 * share, 2)] for label, share in pid.parts.items() if share > 0]
-    blocks = next((share for label, share in pid.parts.items() if label.startswith("PID blocks")), 0.0)
+    steps, h = plant_substeps()
     return [
         "Where a PID-run scan goes (cumulative share of the profiled time; the profiler inflates the "
         "Python-heavy parts):",
@@ -682,12 +682,10 @@ def _cosim_reading(rep: Report) -> list[str]:
         *_table(["part", "share [%]"], rows, "lr"),
         f"Reading: at {fmt(per_scan)} ms per scan the PID co-simulation runs {fmt(1000.0 / per_scan)}x "
         "real time; 20,000x needs 0.05 ms per scan for the plant, the PLC program and the trace "
-        f"together. The PLC's two PID blocks alone take {fmt(100 * blocks, 2)} % of the profile: "
-        "each `Pid.step` is a MIMO velocity-form block on numpy arrays of one loop (some 40 us of "
-        "numpy call overhead per loop per scan), so the blocks by themselves exceed the budget. The "
-        "plant is no longer the bottleneck: two RK4 sub-steps of 0.5 s per scan (8 right-hand sides "
-        "instead of 80), chosen from the plant's stiffness bound and checked against solve_ivp to "
-        "1e-6 m (docs/plant.md).",
+        f"together. The plant integrates a scan in {steps} RK4 step{'s' if steps > 1 else ''} of "
+        f"{fmt(h)} s ({4 * steps} right-hand sides), the sub-step its stiffness bound allows outside "
+        "the 5 mm zone around the orifice law's non-smooth points (steps that come near one are "
+        "redone finely), checked against solve_ivp to 1e-6 m (docs/plant.md).",
         "",
     ]
 

@@ -9,15 +9,17 @@ as a PLC output is held between scans), then project the levels into [0, Hmax] w
   checks it against the numpy right-hand side). Both the right-hand side and the RK4 step are
   straight-line code generated per network (:func:`~plant_sim.models._generate_rhs`,
   :func:`rk4_step_for`) and bit-identical to their loop forms (``ScalarRhs.generic``,
-  :func:`_rk4_reference`; tests/plant_sim/test_generated_rhs.py). The sub-step is the plant's own
-  (:func:`rk4_substep_s`: ``min(1 s, 2 / lambda_max)`` with ``lambda_max`` a bound on every
-  eigenvalue of the Jacobian, so every mode stays inside RK4's stability interval), and a
-  sub-step that comes near a non-smooth point of the right-hand side (an empty or full tank, equal
-  levels across a valve) is redone in sub-steps of at most ``EVENT_SUBSTEP_S``; a caller may fix
-  the sub-step instead (``max_substep_s``). Runge-Kutta methods preserve linear invariants, so the
+  :func:`_rk4_reference`; tests/plant_sim/test_generated_rhs.py). The coarse sub-step is the
+  plant's own (:func:`rk4_substep_s`: ``min(1 s, 0.5 / lambda_smooth)`` with ``lambda_smooth`` a
+  bound on every eigenvalue of the Jacobian at states at least ``SMOOTH_ZONE_M`` from a
+  non-smooth point, so every mode a coarse step meets is integrated stably and accurately),
+  and a sub-step that comes near a non-smooth point of the right-hand side (an empty or full
+  tank, equal levels across a valve) is redone in sub-steps of at most :func:`event_substep_s`
+  (``EVENT_SUBSTEP_S``, or less where the laminar band's modes need it); a caller may fix the
+  sub-step instead (``max_substep_s``). Runge-Kutta methods preserve linear invariants, so the
   balance closes to rounding. Validated against the adaptive solver at tight tolerance in the
-  tests: within 1e-6 m on the shipped three-tank sets and a two-tank plant (docs/plant.md). This is the
-  fast path (co-simulation).
+  tests: within 1e-6 m on the shipped three-tank sets and a two-tank plant (docs/plant.md). This
+  is the fast path (co-simulation).
 - :func:`step_adaptive` calls :func:`scipy.integrate.solve_ivp` (RK45 by default, tolerances
   ``rtol``, ``atol``) and raises :class:`~tanklab.errors.IntegrationError` when the solver fails or
   the state is not finite.
@@ -37,8 +39,15 @@ from plant_sim.models import FloatArray, PlantInputs, RhsAtFn, RhsFn, ScalarRhs,
 from tanklab.errors import IntegrationError
 
 RK4_STABLE_H_LAMBDA = 2.0
-"""Largest ``h * lambda_max`` of an automatic sub-step (RK4's real stability interval is 2.785;
-at 2.0 its amplification factor is 1/3, so even the stiffest mode is damped)."""
+"""Largest ``h * lambda_max`` of a fine sub-step, ``lambda_max`` the fastest mode anywhere (RK4's
+real stability interval is 2.785; at 2.0 its amplification factor is 1/3, so even the stiffest
+mode, met only in the laminar band near an empty tank or a zero head, is damped)."""
+
+RK4_COARSE_H_LAMBDA = 0.5
+"""Largest ``h * lambda_smooth`` of a coarse sub-step, ``lambda_smooth`` the fastest mode outside
+the smooth zone: well inside the stability interval, and accurate for that mode too (RK4's
+amplification factor differs from ``exp(-0.5)`` by 2.4e-4; the mode is that fast only at the
+zone's edge, and ``(h lambda)^5 / 120`` smaller wherever heads are larger)."""
 
 MAX_SUBSTEP_S = 1.0
 """Cap on the automatic sub-step [s] (slow plants: the fastest mode then needs no bound)."""
@@ -52,14 +61,25 @@ SMOOTH_ZONE_M = 5e-3
 
 
 def rk4_substep_s(net: TankNetwork) -> float:
-    """The automatic RK4 sub-step of a plant [s]: ``min(MAX_SUBSTEP_S, 2.0 / lambda_max)``.
+    """The automatic coarse RK4 sub-step of a plant [s]: ``min(MAX_SUBSTEP_S, 0.5 / lambda_smooth)``.
 
-    ``lambda_max`` (:attr:`~plant_sim.models.TankNetwork.fastest_rate_1_s`) bounds every eigenvalue of the
-    Jacobian at any state and any valve and leak openings, so no mode of the plant leaves RK4's
-    stability interval.
+    ``lambda_smooth`` (:meth:`~plant_sim.models.TankNetwork.rate_bound_1_s` at ``SMOOTH_ZONE_M``)
+    bounds every eigenvalue of the Jacobian at the states where coarse steps are kept: a step
+    whose start or end comes within ``SMOOTH_ZONE_M`` of a non-smooth point (an empty tank, a head
+    across a valve near zero, where the orifice law is steepest) is redone in
+    :func:`event_substep_s` steps. So every mode a coarse step meets is integrated stably and
+    accurately (:data:`RK4_COARSE_H_LAMBDA`).
     """
+    rate = net.rate_bound_1_s(SMOOTH_ZONE_M)
+    return MAX_SUBSTEP_S if rate <= 0.0 else min(MAX_SUBSTEP_S, RK4_COARSE_H_LAMBDA / rate)
+
+
+def event_substep_s(net: TankNetwork) -> float:
+    """The longest fine sub-step near a non-smooth point [s]: ``EVENT_SUBSTEP_S``, shortened to
+    ``2.0 / lambda_max`` if the plant's fastest mode anywhere
+    (:attr:`~plant_sim.models.TankNetwork.fastest_rate_1_s`, the laminar band included) needs it."""
     rate = net.fastest_rate_1_s
-    return MAX_SUBSTEP_S if rate <= 0.0 else min(MAX_SUBSTEP_S, RK4_STABLE_H_LAMBDA / rate)
+    return EVENT_SUBSTEP_S if rate <= 0.0 else min(EVENT_SUBSTEP_S, RK4_STABLE_H_LAMBDA / rate)
 
 
 Rk4Step = Callable[[RhsFn, RhsAtFn, list[float], float], tuple[list[float], bool]]
@@ -164,7 +184,7 @@ def step_rk4(
     max_substep_s : fixed sub-steps of at most this length [s]; None (default): automatic, the
         plant's :func:`rk4_substep_s`, with any sub-step that comes near a non-smooth point
         (empty or full tank, equal levels across a valve) redone in sub-steps of at most
-        ``EVENT_SUBSTEP_S``.
+        :func:`event_substep_s`.
 
     Returns
     -------
@@ -181,8 +201,9 @@ def step_rk4(
     f = ScalarRhs(net, u)
     rhs, rhs_at, outside = f.fn, f.fn_at, f.code.outside
     rk4 = rk4_step_for(len(x))
-    # near a non-smooth point the error of a long step is of low order in h: redo it finely
-    n_fine = math.ceil(h / EVENT_SUBSTEP_S - 1e-9) if refine else 1
+    # near a non-smooth point the error of a long step is of low order in h, and the orifice law
+    # is at its steepest: redo it finely
+    n_fine = math.ceil(h / event_substep_s(net) - 1e-9) if refine else 1
     y = x.tolist()
     for _ in range(n_sub):
         # One check of both ends decides, as first checking the start alone and then both would:

@@ -359,20 +359,41 @@ class TankNetwork:
     def fastest_rate_1_s(self) -> float:
         """Upper bound on the modulus of every eigenvalue of the plant's Jacobian, anywhere [1/s].
 
+        :meth:`rate_bound_1_s` with no bound on the heads (the laminar band included).
+        """
+        return self.rate_bound_1_s(None)
+
+    @cached_property
+    def _rate_memo(self) -> dict[float | None, float]:
+        """:meth:`rate_bound_1_s` by ``min_head_m`` (a cache, not state)."""
+        return {}
+
+    def rate_bound_1_s(self, min_head_m: float | None) -> float:
+        """Upper bound on the modulus of every eigenvalue of the plant's Jacobian [1/s] at every
+        state whose heads across open orifices are all at least ``min_head_m`` (None: any state).
+
         The level dynamics linearise to ``J = -A^-1 L`` with ``L`` the weighted Laplacian of the
         orifice graph (weight ``s c g`` per valve, slope ``g`` of the orifice law at the current head;
-        leaks and drain valves on the diagonal). ``g`` is largest in the laminar region,
-        ``1 / sqrt(H_LAMINAR_M)`` (the turbulent slope ``1 / (2 sqrt|dh|)`` is at most half of it), and
-        ``A^-1 L`` has the eigenvalues of the symmetric ``A^-1/2 L A^-1/2``, which only grow with the
-        weights. So the eigenvalues of ``J`` at any state and any valve and leak openings lie in
-        ``[-lambda_max, 0]`` with ``lambda_max`` the largest eigenvalue of ``A^-1/2 L A^-1/2`` with
-        every valve and leak fully open at the laminar slope. A lagged pump adds the rate ``1 / lag_s``.
+        leaks and drain valves on the diagonal, their head the tank's level). ``g`` is largest in the
+        laminar region, ``1 / sqrt(H_LAMINAR_M)`` (the turbulent slope ``1 / (2 sqrt|dh|)`` is at most
+        half of it); with every head at least ``min_head_m`` (>= ``H_LAMINAR_M``) it is at most
+        ``1 / (2 sqrt(min_head_m))``. ``A^-1 L`` has the eigenvalues of the symmetric
+        ``A^-1/2 L A^-1/2``, which only grow with the weights. So the eigenvalues of ``J`` at those
+        states and any valve and leak openings lie in ``[-lambda_max, 0]`` with ``lambda_max`` the
+        largest eigenvalue of ``A^-1/2 L A^-1/2`` with every valve and leak fully open at that slope.
+        A lagged pump adds the rate ``1 / lag_s``.
 
         Not covered: an outflow disturbance fading out over the last ``H_LAMINAR_M`` of an emptying
         tank (the integrator projects levels onto [0, Hmax], so it cannot overshoot below empty).
         """
+        if min_head_m is not None and not min_head_m >= H_LAMINAR_M:
+            raise ValueError(f"min_head_m must be >= H_LAMINAR_M = {H_LAMINAR_M} m, got {min_head_m}")
+        memo = self._rate_memo
+        if min_head_m in memo:
+            return memo[min_head_m]
         n = self.n_tanks
-        g = 1.0 / _SQRT_LAM  # the orifice law's steepest slope: the laminar one
+        # the orifice law's steepest slope at those heads
+        g = 1.0 / _SQRT_LAM if min_head_m is None else 0.5 / math.sqrt(min_head_m)
         L = np.diag(self.leak_conductance * g)
         for up, down, c in zip(self.valve_up, self.valve_down, self.valve_conductance, strict=True):
             w = float(c) * g
@@ -387,6 +408,7 @@ class TankNetwork:
         lags = self.pump_lag_s[self.pump_lag_s > 0]
         if lags.size:
             rate = max(rate, float(np.max(1.0 / lags)))
+        memo[min_head_m] = rate
         return rate
 
     def project(self, x: FloatArray) -> FloatArray:

@@ -144,35 +144,78 @@ def test_automatic_substep_agrees_with_the_adaptive_solver(config: str) -> None:
             assert np.max(np.abs(net.levels(x_rk) - net.levels(x_ad))) < ACCURACY_M, (config, k)
 
 
-def test_automatic_substep_is_inside_rk4s_stability_interval() -> None:
-    """2 / lambda_max bounds every Jacobian eigenvalue: checked at random states and openings."""
-    from plant_sim.integrate import RK4_STABLE_H_LAMBDA, rk4_substep_s
+def _jacobian_levels(net: TankNetwork, x: np.ndarray, u: PlantInputs) -> np.ndarray:
+    """d(dh/dt)/dh by central differences (steps well inside the laminar band)."""
+    n = net.n_tanks
+    J = np.empty((n, n))
+    for j in range(n):
+        e = np.zeros_like(x)
+        e[j] = 1e-7
+        J[:, j] = (net.rhs(0, x + e, u)[:n] - net.rhs(0, x - e, u)[:n]) / 2e-7
+    return J
+
+
+def _smooth_state(net: TankNetwork, levels: np.ndarray, zone: float) -> bool:
+    """Every level and every head across a valve at least ``zone`` from zero (where the coarse
+    step is kept)."""
+    links = zip(net.valve_up, net.valve_down, strict=True)
+    heads = [levels[up] - levels[down] for up, down in links if down >= 0]
+    return bool(np.all(levels >= zone) and all(abs(dh) >= zone for dh in heads))
+
+
+@pytest.mark.parametrize(
+    "config", ["three_tank_energies_sim", "three_tank_kortela", "single_tank_short_sim", "two_tank_published"]
+)
+def test_automatic_substeps_are_inside_rk4s_stability_interval(config: str) -> None:
+    """The coarse sub-step times the bound at heads >= SMOOTH_ZONE_M is within RK4's accurate
+    range, and the fine sub-step times the bound anywhere within its stability interval; both
+    bounds hold every Jacobian eigenvalue at random states and openings (the smooth one at the
+    states outside the zone)."""
+    from plant_sim.integrate import (
+        EVENT_SUBSTEP_S,
+        RK4_COARSE_H_LAMBDA,
+        RK4_STABLE_H_LAMBDA,
+        SMOOTH_ZONE_M,
+        event_substep_s,
+        rk4_substep_s,
+    )
 
     rng = np.random.default_rng(3)
-    for config in (
-        "three_tank_energies_sim",
-        "three_tank_kortela",
-        "single_tank_short_sim",
-        "two_tank_published",
-    ):
-        net = TankNetwork.from_config(load_site(ROOT / f"configs/{config}.yaml").plant)
-        h = rk4_substep_s(net)
-        assert h * net.fastest_rate_1_s <= RK4_STABLE_H_LAMBDA + 1e-12
-        for _ in range(30):
-            x = net.initial_state(rng.uniform(0, 1, net.n_tanks) * net.hmax_m * rng.choice([1e-3, 1.0]))
-            u = PlantInputs(
-                rng.uniform(0, 1, net.n_pumps) * net.pump_max_flow_m3_s,
-                rng.uniform(0, 1, net.n_valves),
-                rng.uniform(0, 1, net.n_tanks),
-                np.zeros(net.n_tanks),
-            )
-            n = net.n_tanks
-            J = np.empty((n, n))
-            for j in range(n):  # central differences, steps well inside the laminar band
-                e = np.zeros_like(x)
-                e[j] = 1e-7
-                J[:, j] = (net.rhs(0, x + e, u)[:n] - net.rhs(0, x - e, u)[:n]) / 2e-7
-            assert np.max(np.abs(np.linalg.eigvals(J))) <= net.fastest_rate_1_s * (1 + 1e-6)
+    net = TankNetwork.from_config(load_site(ROOT / f"configs/{config}.yaml").plant)
+    smooth = net.rate_bound_1_s(SMOOTH_ZONE_M)
+    assert smooth < net.fastest_rate_1_s  # the laminar band is where the stiffness is
+    assert rk4_substep_s(net) * smooth <= RK4_COARSE_H_LAMBDA + 1e-12
+    assert event_substep_s(net) * net.fastest_rate_1_s <= RK4_STABLE_H_LAMBDA + 1e-12
+    assert event_substep_s(net) <= EVENT_SUBSTEP_S
+    checked_smooth = 0
+    for _ in range(60):
+        scale = rng.choice([1e-3, 1e-2, 1.0])
+        x = net.initial_state(rng.uniform(0, 1, net.n_tanks) * net.hmax_m * scale)
+        u = PlantInputs(
+            rng.uniform(0, 1, net.n_pumps) * net.pump_max_flow_m3_s,
+            rng.uniform(0, 1, net.n_valves),
+            rng.uniform(0, 1, net.n_tanks),
+            np.zeros(net.n_tanks),
+        )
+        eig = float(np.max(np.abs(np.linalg.eigvals(_jacobian_levels(net, x, u)))))
+        assert eig <= net.fastest_rate_1_s * (1 + 1e-6)
+        if _smooth_state(net, net.levels(x), SMOOTH_ZONE_M):
+            checked_smooth += 1
+            assert eig <= smooth * (1 + 1e-6)
+    assert checked_smooth >= 10
+
+
+def test_smooth_rate_bound_is_reached_at_the_zone_edge() -> None:
+    """The bound at heads >= h is attained: a single tank draining through its valve at exactly
+    the zone's edge has the mode c s / (2 A sqrt(h)), and the bound is never below it."""
+    net = TankNetwork.from_config(load_site(ROOT / "configs/single_tank_short_sim.yaml").plant)
+    h = 5e-3
+    u = PlantInputs(np.zeros(net.n_pumps), np.ones(net.n_valves), np.ones(net.n_tanks), np.zeros(net.n_tanks))
+    x = net.initial_state(np.full(net.n_tanks, h))
+    eig = float(np.max(np.abs(np.linalg.eigvals(_jacobian_levels(net, x, u)))))
+    assert eig == pytest.approx(net.rate_bound_1_s(h), rel=1e-5)
+    with pytest.raises(ValueError, match="min_head_m"):
+        net.rate_bound_1_s(0.0)
 
 
 def test_overflow_in_one_long_substep_is_refined() -> None:
