@@ -279,6 +279,7 @@ PDAS_MAX_SETS = 12
 _LAW_CACHE = 4
 
 _ONE = np.ones(1)
+_ZERO = np.zeros(1)
 
 #: Margin [fraction of the range] by which an affine law's plan must clear its inactive input and
 #: rate bounds: far above the rounding of the law's product, so the plan needs no projection.
@@ -308,8 +309,9 @@ class _KktSolution:
 class _LuFactor:
     """Sparse LU of the KKT matrix of one active set (rows ``idx``), in the band order.
 
-    Also keeps, per row bordered onto it by a :class:`_SchurFactor`, the border column c and
-    K^-1 c: a transient borders mostly the same rows step after step, so each is solved once.
+    Also keeps, per row bordered onto it by a :class:`_SchurFactor`, the border column c (sparse:
+    its positions and values) and K^-1 c: a transient borders mostly the same rows step after
+    step, so each is solved once.
     """
 
     def __init__(
@@ -322,9 +324,13 @@ class _LuFactor:
         self.pos_v = pos[:nv]
         self.pos_w = pos[nv:]
         self.border_col: dict[int, int] = {}
-        """Row of :attr:`c_rows` / :attr:`z_rows` holding a bordered constraint row's c' / (K^-1 c)'."""
-        self.c_rows = np.zeros((_BORDER_ROWS, pos.size))
+        """Slot of a bordered constraint row in :attr:`c_pos`, :attr:`c_val` and :attr:`z_rows`."""
+        self.c_pos: list[NDArray[np.int64]] = []
+        """Per slot, the positions of the border column's nonzeros (a constraint row has a few)."""
+        self.c_val: list[FloatArray] = []
+        """Per slot, the values at :attr:`c_pos`."""
         self.z_rows = np.zeros((_BORDER_ROWS, pos.size))
+        """Per slot, (K^-1 c)'."""
 
     def solve(self, q: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
         """v, y_W with P v + A_W' y_W = -q and A_W v = b (q, b vectors, or matrices column by column)."""
@@ -348,7 +354,9 @@ class _SchurFactor:
         [ C'  0 ] [ t ] = [ r1 ]   =>   (C' K0^-1 C) t = C' K0^-1 r0 - r1,   s = K0^-1 (r0 - C t)
 
     Z = K0^-1 C and the LU of the small dense M = C' Z are computed once per set (Z's columns once
-    per row and base, :class:`_LuFactor`).
+    per row and base, :class:`_LuFactor`). C is kept sparse (``c_pos``, ``c_val``, the columns'
+    nonzeros one after another from offsets ``starts``): a border column has a few nonzeros out
+    of some 500 rows, so C' x is a gather and a segmented sum instead of a dense product.
     """
 
     def __init__(
@@ -359,7 +367,7 @@ class _SchurFactor:
         keep_t: NDArray[np.int64],
         keep_0: NDArray[np.int64],
         add_t: NDArray[np.int64],
-        Ct: FloatArray,
+        border: tuple[NDArray[np.int64], FloatArray, NDArray[np.int64]],
         Zt: FloatArray,
         M_lu: tuple[FloatArray, NDArray[np.int32]],
         n_add: int,
@@ -370,7 +378,7 @@ class _SchurFactor:
         self._keep_t = keep_t
         self._pos_keep = base.pos_w[keep_0]
         self._add_t = add_t
-        self._Ct = Ct
+        self._c_pos, self._c_val, self._starts = border
         self._Zt = Zt
         self._M_lu = M_lu
         self._n_add = n_add
@@ -383,9 +391,10 @@ class _SchurFactor:
         r0[base.pos_v] = -q
         r0[self._pos_keep] = b[self._keep_t]
         s = base.lu.solve(r0)
-        r1 = np.zeros((self._Ct.shape[0], *cols))
+        r1 = np.zeros((self._starts.size, *cols))
         r1[: self._n_add] = b[self._add_t]
-        t, _ = lapack.dgetrs(*self._M_lu, self._Ct @ s - r1)
+        val = self._c_val if not cols else self._c_val[:, None]
+        t, _ = lapack.dgetrs(*self._M_lu, np.add.reduceat(s[self._c_pos] * val, self._starts) - r1)
         s -= self._Zt.T @ t
         y = np.empty((self.idx.size, *cols))
         y[self._keep_t] = s[self._pos_keep]
@@ -554,19 +563,30 @@ class _ActiveSetQp:
         if first + len(new) > _BORDER_ROWS:
             return self._lu(act)  # this base has served its transient: a new one
         if new:
-            C_new = base.c_rows[first : first + len(new)]  # view, zeros
+            C_new = np.zeros((len(new), base.pos.size))
             A = self._A
             for k, r in enumerate(new):
                 if base.act[r]:  # a dropped row: y_r = 0
-                    C_new[k, base.pos_w[np.searchsorted(base.idx, r)]] = 1.0
-                else:  # an added row: a_r v = b_r
+                    pos, val = base.pos_w[np.searchsorted(base.idx, r)][None], _ONE
+                elif A.indptr[r + 1] > A.indptr[r]:  # an added row: a_r v = b_r
                     lo, hi = A.indptr[r], A.indptr[r + 1]
-                    C_new[k, base.pos_v[A.indices[lo:hi]]] = A.data[lo:hi]
+                    pos, val = base.pos_v[A.indices[lo:hi]], A.data[lo:hi]
+                else:  # an empty row (singular set): one explicit zero keeps every segment nonempty
+                    pos, val = base.pos_v[:1], _ZERO
+                C_new[k, pos] = val
+                base.c_pos.append(pos)
+                base.c_val.append(val)
                 base.border_col[r] = first + k
             base.z_rows[first : first + len(new)] = base.lu.solve(C_new.T).T
         cols = [base.border_col[r] for r in border]
-        Ct, Zt = base.c_rows[cols], base.z_rows[cols]
-        lu, piv, info = lapack.dgetrf(Ct @ Zt.T)
+        c_pos = np.concatenate([base.c_pos[c] for c in cols])
+        c_val = np.concatenate([base.c_val[c] for c in cols])
+        counts = np.fromiter((base.c_pos[c].size for c in cols), dtype=np.int64, count=len(cols))
+        starts = np.cumsum(counts) - counts
+        Zt = base.z_rows[cols]
+        # M = C' Z, entry (i, j) = c_i' z_j: the nonzeros of each c_i gathered from Z and summed
+        M = np.add.reduceat(Zt.T[c_pos] * c_val[:, None], starts)
+        lu, piv, info = lapack.dgetrf(M)
         d = np.abs(np.diag(lu))
         if info != 0 or d.min() <= _SCHUR_PIVOT_MIN * d.max():
             return None  # (numerically) singular: dependent rows in the new set
@@ -574,7 +594,8 @@ class _ActiveSetQp:
         keep_t = np.flatnonzero(in_base)
         keep_0 = np.searchsorted(base.idx, idx[keep_t])
         add_t = np.flatnonzero(~in_base)
-        return _SchurFactor(act, base, idx, keep_t, keep_0, add_t, Ct, Zt, (lu, piv), added.size)
+        border_c = (c_pos, c_val, starts)
+        return _SchurFactor(act, base, idx, keep_t, keep_0, add_t, border_c, Zt, (lu, piv), added.size)
 
     def _factor(self, act: BoolArray) -> _LuFactor | _SchurFactor | None:
         """The cached factorisation of ``act``, else a Schur complement on the last LU if it is
@@ -1232,6 +1253,7 @@ class MpcController:
             raise ValueError(f"OSQP setup failed: {e!r}") from e
 
         self._reset_runtime_state()
+        self._set_vector_maps()
 
     # ------------------------------------------------------------------------------------------
     # layout and matrices
@@ -1841,22 +1863,28 @@ class MpcController:
         r = np.broadcast_to(theta[n + ne : n + ne + nz], (self._N, nz))
         return theta[:n], theta[n : n + ne], r, theta[n + ne + nz :]
 
-    def _vector_maps(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def _set_vector_maps(self) -> None:
         """q, l and u of the scaled QP as affine maps of th (``_qp_vectors`` for a constant r
-        while u(-1) leaves the first rate row unclipped)."""
-        if self._maps is None:
-            nv, nc = self._nv, self._nc
+        while u(-1) leaves the first rate row unclipped), for the affine laws.
 
-            def vectors(theta: FloatArray) -> FloatArray:
-                return np.concatenate(self._qp_vectors(*self._split(theta)))
+        They depend on the model only, so they are computed with it (here and in
+        :meth:`update_model`; about 0.4 ms at Np = 40), not by the first step that builds a law.
+        """
+        self._maps = None
+        if not self._config.polish:
+            return  # no laws without the exact active-set solves
+        nv, nc = self._nv, self._nc
 
-            M = _affine_map(vectors, *self._law_point())
-            self._maps = (M[:nv], M[nv : nv + nc], M[nv + nc :])
-        return self._maps
+        def vectors(theta: FloatArray) -> FloatArray:
+            return np.concatenate(self._qp_vectors(*self._split(theta)))
+
+        M = _affine_map(vectors, *self._law_point())
+        self._maps = (M[:nv], M[nv : nv + nc], M[nv + nc :])
 
     def _make_law(self, lower: BoolArray, upper: BoolArray) -> _AffineLaw | None:
         """The affine law of the active set (lower, upper); None if the set is singular."""
-        Qm, Lm, Um = self._vector_maps()
+        assert self._maps is not None  # set with the model whenever laws are in use
+        Qm, Lm, Um = self._maps
         N, m, n, ne, nz = self._N, self._m, self._n, self._n_eta, self._nz
         # input and rate rows: inactive ones must clear their bounds by _PLAN_MARGIN, so that a
         # plan with no active rate row is feasible as computed and skips the projection
@@ -2057,7 +2085,6 @@ class MpcController:
         self._settle_warm_start()  # from the old law, before the laws go
         self._laws.clear()
         self._law = None
-        self._maps = None
         self._estimator.shift_state(self._model.x_op - new_model.x_op)
         old_u_op = self._model.u_op
         self._model = new_model
@@ -2067,6 +2094,7 @@ class MpcController:
         P, _, Aqp, _ = self._qp_dense()
         self._solver.update(Px=_csc_data(P, self._Pmask), Ax=_csc_data(Aqp, self._Amask))
         self._kkt.set_values(_csc(P, self._Pmask), _csc(Aqp, self._Amask))
+        self._set_vector_maps()
         if self._ws_x is not None:
             # keep the warm start in absolute terms when u_op moves
             us = slice(self._u_off, self._u_off + self._N * self._m)

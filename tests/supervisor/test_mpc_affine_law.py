@@ -143,7 +143,8 @@ def test_the_affine_kkt_solution_and_certificate_agree_with_a_direct_solve(scale
         ctrl.plan(x, r, u)
     assert ctrl._active is not None
     lower, upper = ctrl._active
-    Qm, Lm, Um = ctrl._vector_maps()
+    assert ctrl._maps is not None  # computed with the model
+    Qm, Lm, Um = ctrl._maps
     kkt = ctrl._kkt.affine(lower, upper, Qm, Lm, Um)
     assert kkt is not None
     rng = np.random.default_rng(seed)
