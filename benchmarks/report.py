@@ -49,6 +49,8 @@ class Report:
     cosim: list[CosimResult] = field(default_factory=list)
     stack: StackResults | None = None
     settings: dict[str, str] = field(default_factory=dict)
+    speed_reference_ms: tuple[float, float] = (math.nan, math.nan)
+    """:func:`benchmarks.common.speed_reference` at the start and at the end of the run [ms]."""
     errors: list[str] = field(default_factory=list)
     extra: list[str] = field(default_factory=list)
     """Whole markdown sections of other benchmark modules (robustness, security), in order."""
@@ -284,6 +286,15 @@ def _header(rep: Report) -> list[str]:
     lines += _table(["package", "version"], [[k, v] for k, v in rep.versions.items()], "ll")
     if rep.settings:
         lines += ["Run settings: " + "; ".join(f"{k} {v}" for k, v in rep.settings.items()) + ".", ""]
+    start, end = rep.speed_reference_ms
+    if math.isfinite(start):
+        lines += [
+            f"Machine speed reference (`benchmarks.common.speed_reference`, a fixed workload shaped "
+            f"like a co-simulation scan; lower is faster): {fmt(start)} ms at the start of the run, "
+            f"{fmt(end)} ms at the end. This machine's speed drifts by up to 40 % within a day: "
+            "compare runs, and read goals near their limits, with this number beside them.",
+            "",
+        ]
     return lines
 
 

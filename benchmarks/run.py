@@ -25,7 +25,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from benchmarks import accuracy, cosim, mpc, report, robustness, security, stack
-from benchmarks.common import ROOT, machine, versions
+from benchmarks.common import ROOT, machine, speed_reference, versions
 from tanklab.threads import limit_blas_threads
 
 SECTIONS = ("mpc", "cosim", "stack", "robustness", "security")
@@ -106,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     limit_blas_threads()
 
     started = time.perf_counter()
+    speed_start = speed_reference()
+    _log(f"machine speed reference: {speed_start:.1f} ms")
     command = "python -m benchmarks.run" + (" --quick" if args.quick else "")
     if only != set(SECTIONS):
         command += f" --only {','.join(s for s in SECTIONS if s in only)}"
@@ -187,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     section("stack", run_stack)
     section("robustness", run_robustness)
     section("security", run_security)
+    rep.speed_reference_ms = (speed_start, speed_reference())
+    _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(report.render(rep), encoding="utf-8")
