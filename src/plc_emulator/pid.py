@@ -40,14 +40,19 @@ integral-only move.
 Single-loop fast path: a block of one loop (n = 1, every loop of a decentralised PID) runs the
 law above on Python floats instead of 1-element numpy arrays. Numpy's per-call overhead (some
 37 us per step: a dozen ufuncs and three matmuls on one element) made the PID blocks the
-co-simulation's largest cost; the same IEEE operations on floats take about 1.6 us. Both paths do the
-same floating-point operations in the same order (the 1 x 1 products are single multiplies), so
-they agree bit for bit; ``tests/plc_emulator/test_pid.py::test_scalar_fast_path_matches_numpy_path``
+co-simulation's largest cost; the same IEEE operations on floats take about 1.6 us, and 0.8 us with
+the clamps written out as comparisons (``lo if lo > x else x`` is what ``max(x, lo)`` does, NaN and
+signed zeros included) and the result tuple built without the NamedTuple's Python-level
+constructor. Both paths do the same floating-point operations in the same order (the 1 x 1
+products are single multiplies), so they agree exactly (a zero's sign aside: the numpy product
+adds to +0.0); ``tests/plc_emulator/test_pid.py::test_scalar_fast_path_matches_numpy_path``
 runs random configurations, gains, modes, writes, rate limits, ramps, saturation and bad PVs
-through both and compares every output. The state (u(k-1), error memory, held values, counters)
-is kept in Python lists for every n, so both paths share it; the n-loop path converts it to
-arrays per step. `Pid.step_siso` is the scalar entry point the PLC program uses (no arrays at
-all); `Pid.step` on a one-loop block uses the same core and wraps its results in arrays.
+through both and compares every output, and ``test_float_path_is_bit_for_bit_its_first_form*``
+hold the float path to its first form (builtin min / max) bit for bit, signed zeros included.
+The state (u(k-1), error memory, held values, counters) is kept in Python lists for every n, so
+both paths share it; the n-loop path converts it to arrays per step. `Pid.step_siso` is the
+scalar entry point the PLC program uses (no arrays at all); `Pid.step` on a one-loop block uses
+the same core and wraps its results in arrays.
 """
 
 from __future__ import annotations
@@ -461,6 +466,9 @@ class PidLoopStep(NamedTuple):
     mode: LoopMode
 
 
+_new_tuple = tuple.__new__
+
+
 class Pid:
     """MIMO velocity-form PID with modes, limits, setpoint ramp and PV-bad substitution.
 
@@ -743,11 +751,16 @@ class Pid:
         kp, ki, kd = self._one_gains
         good = pv_good and math.isfinite(pv)
 
-        # Working setpoint: clamp the target, then ramp toward it.
-        target = min(max(sp, sp_lo), sp_hi)
+        # Working setpoint: clamp the target, then ramp toward it. Every min(max(x, lo), hi) of
+        # this path is written out as the builtins evaluate it (max keeps x unless lo > x, min
+        # keeps it unless hi < it; NaN and signed zeros alike), without their calls' cost.
+        target = sp_lo if sp_lo > sp else sp
+        target = sp_hi if sp_hi < target else target
         if self._started:
             w_prev = self._w[0]
-            w = w_prev + min(max(target - w_prev, -sp_step), sp_step)
+            step = target - w_prev
+            step = -sp_step if -sp_step > step else step
+            w = w_prev + (sp_step if sp_step < step else step)
         else:
             w = target
             self._started = True
@@ -791,15 +804,21 @@ class Pid:
         if math.isnan(raw):  # overflowing products (inf - inf): hold
             raw = u_prev
 
-        limited = min(max(raw, u_prev - du_max), u_prev + du_max)
-        u = min(max(limited, lo), hi)
+        low, up = u_prev - du_max, u_prev + du_max
+        limited = low if low > raw else raw
+        limited = up if up < limited else limited
+        u = lo if lo > limited else limited
+        u = hi if hi < u else u
 
         self._u[0] = u
         if good:
             self._e_prev[0] = e_used
         self._d_prev[0] = d_new
         self._needs_init[0] = not good
-        return PidLoopStep(u, w, e, p, i, d, u != limited, limited != raw, good, substituted, mode)
+        # tuple.__new__ skips the NamedTuple's Python-level __new__ (a third of this method's cost)
+        return _new_tuple(
+            PidLoopStep, (u, w, e, p, i, d, u != limited, limited != raw, good, substituted, mode)
+        )
 
     def _step_arrays(self, sp_arr: FloatArray, pv_arr: FloatArray, good_in: BoolArray) -> PidStepResult:
         """The law of the module docstring for any n on arrays (validated inputs)."""

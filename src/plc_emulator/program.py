@@ -324,6 +324,8 @@ class PlcProgram:
                 lp.block.set_mode(
                     LoopMode.MANUAL, lp.manual_mv if lp.mode is LoopMode.MANUAL else lp.remote_mv
                 )
+        # The NL-PI and MRAC loops with their blocks (fixed from here on: the scan needs no search)
+        self._single_blocks = [(lp, b) for lp in self.loops if (b := lp.block) is not None]
 
     @staticmethod
     def _coupled_groups(loops: list[_Loop]) -> list[list[_Loop]]:
@@ -772,9 +774,8 @@ class PlcProgram:
             for k, lp in enumerate(group.loops):
                 lp.mv = float(res.mv[k])
                 lp.substituted = bool(res.substituted[k])
-        for lp in self.loops:
-            if lp.block is not None:
-                self._step_block(lp, lp.block)
+        for lp, block in self._single_blocks:
+            self._step_block(lp, block)
 
     def _step_block(self, lp: _Loop, block: NlPi | AdaptiveNlPi | Mrac) -> None:
         """One scan of a single-loop block: SP ramp, the block, PV-bad substitute, rate limit."""
@@ -851,8 +852,12 @@ class PlcProgram:
         for lp in self.loops:
             commands[lp.pump] = lp.mv
         for k, c in enumerate(commands):
-            lo = lows[k]
-            commands[k] = lo if forced is not None and forced[k] else min(max(c, lo), highs[k])
+            lo, hi = lows[k], highs[k]
+            if forced is not None and forced[k]:
+                commands[k] = lo
+            else:  # min(max(c, lo), hi) as the builtins evaluate it, without their calls
+                low = lo if lo > c else c
+                commands[k] = hi if hi < low else low
 
     # ---- publishing ---------------------------------------------------------------------
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import struct
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plc_emulator.pid import Pid, PidConfig, PidGains
+from plc_emulator.pid import Pid, PidConfig, PidGains, PidLoopStep
 from tanklab.enums import LoopMode
 
 AUTO, MANUAL, REMOTE = LoopMode.AUTO, LoopMode.MANUAL, LoopMode.REMOTE
@@ -585,9 +586,9 @@ one_loop_action = st.one_of(
 
 
 @st.composite
-def one_loop_pair(draw: st.DrawFn) -> tuple[Pid, Pid]:
+def one_loop_pair(draw: st.DrawFn, lows: st.SearchStrategy[float] | None = None) -> tuple[Pid, Pid]:
     """Two identical one-loop blocks; the second forced onto the numpy path."""
-    lo = draw(st.floats(-100.0, 0.0))
+    lo = draw(st.floats(-100.0, 0.0) if lows is None else lows)
     hi = lo + draw(st.floats(0.01, 100.0))
     sp_lo = draw(st.one_of(st.just(-math.inf), st.floats(-1e3, 0.0)))
     sp_hi = draw(st.one_of(st.just(math.inf), st.floats(0.0, 1e3)))
@@ -616,9 +617,9 @@ def one_loop_pair(draw: st.DrawFn) -> tuple[Pid, Pid]:
 
 
 def _same(fast: Any, ref: Any, what: str) -> None:
-    np.testing.assert_allclose(
-        np.asarray(fast, dtype=float), np.asarray(ref, dtype=float), rtol=1e-12, atol=0.0, err_msg=what
-    )
+    """Exactly equal (NaN where NaN). Only the sign of a zero may differ: a 1 x 1 product on the
+    numpy path adds to +0.0 (0 + (-0.0) = +0.0), the float path's single multiply keeps -0.0."""
+    np.testing.assert_array_equal(np.asarray(fast, dtype=float), np.asarray(ref, dtype=float), err_msg=what)
 
 
 @pytest.mark.parametrize("entry", ["step", "step_siso"])
@@ -669,6 +670,147 @@ def test_scalar_fast_path_matches_numpy_path(entry: str, pair: tuple[Pid, Pid], 
             _same(getattr(fast, name), getattr(ref, name), name)
         assert np.array_equal(fast.pv_bad_count, ref.pv_bad_count)
         assert fast.modes == ref.modes
+
+
+def _reference_step_one(pid: Pid, sp: float, pv: float, pv_good: bool) -> PidLoopStep:
+    """The float path as first written (builtin min/max, the NamedTuple's constructor), on the
+    block's own state: the oracle that the written-out clamps of `Pid._step_one` change no bit."""
+    lo, hi, du_max, sp_lo, sp_hi, sp_step, sign, alpha, ts, n_bad, subst_value, subst_mv = pid._one
+    kp, ki, kd = pid._one_gains
+    good = pv_good and math.isfinite(pv)
+    target = min(max(sp, sp_lo), sp_hi)
+    if pid._started:
+        w = pid._w[0] + min(max(target - pid._w[0], -sp_step), sp_step)
+    else:
+        w = target
+        pid._started = True
+    pid._w[0] = w
+    bad_count = 0 if good else pid._bad_count[0] + 1
+    pid._bad_count[0] = bad_count
+    d_prev = pid._d_prev[0]
+    if good:
+        e = sign * (w - pv)
+        if pid._needs_init[0]:
+            e_prev, d_prev = e, 0.0
+        else:
+            e_prev = pid._e_prev[0]
+        e_used, de = e, e - e_prev
+        d_new = alpha * d_prev + (1.0 - alpha) * de / ts
+    else:
+        e, e_used, de, d_new = math.nan, 0.0, 0.0, d_prev
+    p, i, d = kp * de, ki * (ts * e_used), kd * (d_new - d_prev)
+    u_prev = pid._u[0]
+    mode = pid._modes[0]
+    raw = u_prev + p + i + d if mode is AUTO else pid._remote[0] if mode is REMOTE else pid._manual[0]
+    substituted = not good and bad_count >= n_bad and mode is not MANUAL
+    if substituted:
+        raw = subst_mv if subst_value else u_prev
+    if math.isnan(raw):
+        raw = u_prev
+    limited = min(max(raw, u_prev - du_max), u_prev + du_max)
+    u = min(max(limited, lo), hi)
+    pid._u[0] = u
+    if good:
+        pid._e_prev[0] = e_used
+    pid._d_prev[0] = d_new
+    pid._needs_init[0] = not good
+    return PidLoopStep(u, w, e, p, i, d, u != limited, limited != raw, good, substituted, mode)
+
+
+def _bits(x: object) -> object:
+    """A float as its 8 bytes (signed zeros and NaNs told apart); anything else as itself."""
+    return struct.pack("<d", x) if isinstance(x, float) else x
+
+
+# Where the written-out clamps could part from min / max: signed zeros (zero errors, outputs
+# held at a limit of 0.0 or -0.0), NaN and overflowing values.
+zeros = st.sampled_from([0.0, -0.0])
+signed = st.one_of(zeros, finite, st.sampled_from([1e308, -1e308]))
+corner_action = st.one_of(
+    st.tuples(st.just("scan"), signed, st.one_of(st.none(), signed, pv_value), st.booleans()),
+    st.tuples(st.sampled_from(["manual", "remote", "track"]), zeros),
+    st.tuples(st.just("gains"), st.one_of(zeros, gain), st.one_of(zeros, gain), st.one_of(zeros, gain)),
+    one_loop_action,
+)
+
+
+def _replay_against_reference(fast: Pid, ref: Pid, actions: list[Any]) -> None:
+    """Apply ``actions`` to both blocks, ``fast`` scanning through `Pid.step_siso` and ``ref``
+    through `_reference_step_one`; every result and all state must agree bit for bit."""
+    ref._scalar = True  # the reference runs on the same float state
+    for action in actions:
+        kind = action[0]
+        if kind == "scan":
+            _, sp, pv, good = action
+            pv = sp if pv is None else pv  # a zero error
+            got, expected = fast.step_siso(sp, pv, good), _reference_step_one(ref, sp, pv, good)
+            assert type(got) is PidLoopStep
+            assert [_bits(x) for x in got] == [_bits(x) for x in expected], action
+        elif kind == "mode":
+            mv = None if action[1] is AUTO else action[2]
+            fast.set_mode(0, action[1], mv)
+            ref.set_mode(0, action[1], mv)
+        elif kind == "gains":
+            fast.set_gains(*([g] for g in action[1:]))
+            ref.set_gains(*([g] for g in action[1:]))
+        else:
+            verb = {"manual": Pid.set_manual_mv, "remote": Pid.set_remote_mv, "track": Pid.track}[kind]
+            verb(fast, 0, action[1])
+            verb(ref, 0, action[1])
+        for name in ("_u", "_w", "_e_prev", "_d_prev", "_manual", "_remote"):
+            assert [_bits(x) for x in getattr(fast, name)] == [_bits(x) for x in getattr(ref, name)], name
+        assert fast._bad_count == ref._bad_count and fast._needs_init == ref._needs_init
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    pair=one_loop_pair(st.one_of(zeros, st.floats(-100.0, 0.0))), actions=st.lists(corner_action, max_size=60)
+)
+def test_float_path_is_bit_for_bit_its_first_form(pair: tuple[Pid, Pid], actions: list[Any]) -> None:
+    _replay_against_reference(*pair, actions)
+
+
+@pytest.mark.parametrize(
+    ("limits", "sp_limits", "du_max", "sp_rate", "mode"),
+    list(
+        itertools.product(
+            [(0.0, 1.0), (-0.0, 1.0), (-1.0, 0.0), (-1.0, -0.0)],
+            [(0.0, 0.0), (-0.0, -0.0), (-math.inf, 0.0), (-0.0, math.inf)],
+            [None, 0.5],
+            [None, 0.25],
+            [AUTO, MANUAL, REMOTE],
+        )
+    ),
+)
+def test_float_path_is_bit_for_bit_its_first_form_at_the_corners(
+    limits: tuple[float, float],
+    sp_limits: tuple[float, float],
+    du_max: float | None,
+    sp_rate: float | None,
+    mode: LoopMode,
+) -> None:
+    # Signed zeros on every limit, input and held value: where a clamp written out by hand could
+    # part from min / max (a random search reaches these only now and then).
+    cfg = PidConfig(
+        n_loops=1,
+        ts_s=1.0,
+        u_min=limits[0],
+        u_max=limits[1],
+        du_max=du_max,
+        sp_min=sp_limits[0],
+        sp_max=sp_limits[1],
+        sp_rate=sp_rate,
+        initial_mv=limits[0],
+        initial_mode=mode,
+        pv_bad_scans=1,
+    )
+    gains = PidGains.diagonal([0.0], [1.0], [0.0])
+    values = [0.0, -0.0, 0.5, -0.5]  # +-0.5: u(k-1) -+ du_max is a zero
+    scans = [("scan", sp, pv, good) for sp in values for pv in [None, *values] for good in (True, False)]
+    actions: list[Any] = []
+    for held, applied in itertools.product(values, values):
+        actions += [("manual", held), ("remote", held), ("track", applied), *scans]
+    _replay_against_reference(Pid(cfg, gains), Pid(cfg, gains), actions)
 
 
 def test_scalar_fast_path_oracle_and_diagnostics() -> None:

@@ -130,6 +130,32 @@ def test_values_publish_exactly_the_program_owned_plc_tags(path: Path) -> None:
         assert not (isinstance(value, float) and not math.isfinite(value)), path_
 
 
+def test_scan_state_arrays_are_new_copies_that_match_the_published_values() -> None:
+    # The scan keeps its per-tank and per-pump state in lists; levels_m, good, last_good_m and
+    # commands are arrays built on each read, and each scan hands out a commands array of its own
+    # (the co-simulation keeps it, read-only, in its trace).
+    rig = Rig(energies())
+    plc = rig.plc
+    assert plc.commands.tolist() == [0.0, 0.0] and plc.last_good_m.tolist() == [0.0, 0.0, 0.0]
+    assert np.isnan(plc.levels_m).all() and not plc.good.any()  # before the first scan
+    first = rig.scan([0.3, 0.2, 0.25])
+    first.commands.flags.writeable = False
+    out = rig.scan([0.31, math.nan, 0.7])  # T2 not finite, T3 over range
+    assert out.commands is not first.commands and out.commands.flags.writeable
+    assert plc.commands.tolist() == out.commands.tolist() and plc.commands is not plc.commands
+    assert plc.levels_m.dtype == np.float64 and plc.good.dtype == np.bool_
+    assert plc.good.tolist() == [True, False, False]
+    assert np.array_equal(plc.levels_m, [0.31, math.nan, math.nan], equal_nan=True)
+    assert plc.last_good_m.tolist() == [0.31, 0.2, 0.25]
+    for i, name in enumerate(("1", "2", "3")):
+        assert out.values[f"PLC.IO.LT{name}.PV"] == plc.last_good_m[i]
+        assert out.values[f"PLC.IO.LT{name}.Good"] is bool(plc.good[i])
+    plc.commands[:] = 1.0  # writing to a copy changes nothing in the program
+    plc.last_good_m[:] = 1.0
+    assert plc.commands.tolist() == out.commands.tolist()
+    assert plc.last_good_m.tolist() == [0.31, 0.2, 0.25]
+
+
 # =========================================================================== velocity-form PID
 def test_velocity_form_increments_three_scans_by_hand() -> None:
     # LIC1, SP 0.4, u(-1) = 0, e(-1) = e(-2) = 0 (digest 2.1), PV 0.30, 0.32, 0.33:
@@ -926,11 +952,11 @@ def test_pid_float_path_scans_like_the_numpy_path(seq: list[tuple[Any, Any, Any]
         lv = np.array([math.nan if quality == "nan" else x for x in levels])
         a, b = (plc.scan(ScanInputs(t, lv.copy(), good, quality != "io")) for plc in (fast, ref))
         t += fast.ts_s
-        np.testing.assert_allclose(a.commands, b.commands, rtol=1e-12, atol=0.0)
+        np.testing.assert_array_equal(a.commands, b.commands)  # exactly (a zero's sign aside)
         assert a.values.keys() == b.values.keys()
         for key, value in a.values.items():
             assert type(value) is type(b.values[key]), key
-            assert value == pytest.approx(b.values[key], rel=1e-12, abs=0.0), key
+            assert value == b.values[key], key
 
     def request(plc: PlcProgram, kind: str, a: Any, b: Any) -> object:
         """Apply one request; its answer (a status, the tanks reset, or the refusal)."""
