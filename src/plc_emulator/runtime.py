@@ -27,8 +27,10 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from plc_emulator.link import FieldLink, FieldReadings
 from plc_emulator.program import PlcProgram, ScanInputs
@@ -71,6 +73,15 @@ async def _wait_event(event: asyncio.Event, timeout_s: float) -> bool:
     except TimeoutError:
         return False
     return True
+
+
+def _trace_row(
+    program: PlcProgram, values: dict[str, Any], readings: FieldReadings, commands: NDArray[np.float64]
+) -> list[float]:
+    """One trace line: scan, model time, levels read, commands written, each loop's SP, mode and
+    gain source (as left by the scan)."""
+    row = [float(program.scan_count), float(values["PLC.Status.ModelTime"]), *readings.levels_m, *commands]
+    return row + [float(x) for lp in program.loops for x in (lp.sp_m, int(lp.mode), int(lp.source))]
 
 
 async def run_plc(
@@ -168,6 +179,12 @@ async def run_plc(
                 readings = FieldReadings(np.full(n, np.nan), np.zeros(n, dtype=bool))
             ack.clear()
             out = program.scan(ScanInputs(t_model, readings.levels_m, readings.good, healthy))
+            # The scan's row is taken now: a supervisor write may land during the field I/O below.
+            row = _trace_row(program, out.values, readings, out.commands) if trace_file is not None else None
+            # Publish the scan's values before the field I/O: in lock-step the supervisor reads
+            # and acts on them while the plant integrates (its acknowledgement may then arrive
+            # before Advance returns), instead of after; nothing below changes them.
+            await server.publish({**out.values, "PLC.Status.Overruns": deadlines.overruns})
             if lockstep:
                 result = await field_link.advance(ts, out.commands)
                 if result is not None:
@@ -178,26 +195,12 @@ async def run_plc(
                 if healthy:
                     await field_link.write_commands(out.commands)
                 t_model += ts
-            duration = clock.now() - started
-            await server.publish(
-                {
-                    **out.values,
-                    "PLC.Status.LastScanDuration": duration,
-                    "PLC.Status.Overruns": deadlines.overruns,
-                }
-            )
+            await server.publish({"PLC.Status.LastScanDuration": clock.now() - started})
             stats.scans += 1
             if retain is not None and (now_retained := program.retained()) != retained_last:
                 _save_retained(retain, now_retained)
                 retained_last = now_retained
-            if trace_file is not None:
-                row = [
-                    program.scan_count,
-                    out.values["PLC.Status.ModelTime"],
-                    *readings.levels_m,
-                    *out.commands,
-                ]
-                row += [x for lp in program.loops for x in (lp.sp_m, int(lp.mode), int(lp.source))]
+            if trace_file is not None and row is not None:
                 trace_file.write(",".join(repr(float(x)) for x in row) + "\n")
             if lockstep:
                 w = program.watchdog

@@ -4,7 +4,8 @@
 mode and applied gains, and every level the PLC reads with its quality, so that errors and MVs
 belong to the same scan (architecture: RLS data). ``apply`` writes what a cycle decided in a safe
 order: RemoteMV before Mode (entering REMOTE never applies a stale value), then SetGains, and the
-heartbeat last (in lock-step the heartbeat is the PLC's permission to scan again).
+heartbeat last (in lock-step the heartbeat is the PLC's permission to scan again), in as few
+round trips as that order allows.
 """
 
 from __future__ import annotations
@@ -63,18 +64,27 @@ class PlcLink:
             values[path] = dv.Value.Value
         return PlcSnapshot.from_values(values, self.loops, self.tanks)
 
-    async def apply(self, actions: Actions) -> list[str]:
-        """Write a cycle's decisions; return the loops whose gain push the PLC refused.
+    async def apply(self, actions: Actions, heartbeat: int | None = None) -> list[str]:
+        """Write a cycle's decisions, then ``heartbeat``; return the loops whose gain push the
+        PLC refused.
+
+        RemoteMV and Mode go in one Write (the PLC applies a Write's items in order); the
+        heartbeat joins that Write when no gains are pushed, else follows the SetGains calls in
+        its own: one round trip per cycle in the usual case instead of one per kind of value.
 
         Raises
         ------
         LinkError
             When the PLC cannot be reached (nothing more is written).
         """
-        if actions.remote_mv:
-            await self._write({f"PLC.{lp}.RemoteMV": mv for lp, mv in actions.remote_mv.items()})
-        if actions.modes:
-            await self._write({f"PLC.{lp}.Mode": int(m) for lp, m in actions.modes.items()})
+        values: dict[str, object] = {f"PLC.{lp}.RemoteMV": mv for lp, mv in actions.remote_mv.items()}
+        values.update({f"PLC.{lp}.Mode": int(m) for lp, m in actions.modes.items()})
+        beat: dict[str, object] = {} if heartbeat is None else {"PLC.Supervisor.Heartbeat": heartbeat % 2**32}
+        if not actions.gains:
+            values.update(beat)
+            beat = {}
+        if values:
+            await self._write(values)
         refused = []
         for lp, (kp, ki, kd) in actions.gains.items():
             try:
@@ -88,6 +98,8 @@ class PlcLink:
             except ua.UaStatusCodeError as e:
                 log.warning("PLC refused gains for %s: %s", lp, type(e).__name__)
                 refused.append(lp)
+        if beat:
+            await self._write(beat)
         return refused
 
     async def heartbeat(self, value: int) -> None:

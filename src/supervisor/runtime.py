@@ -99,6 +99,7 @@ async def run_supervisor(
                 cycles_due = (
                     last_cycle_scan is None or snap.scan - last_cycle_scan >= site.supervisor.cycle_scans
                 )
+                heartbeat += 1
                 if cycles_due:
                     last_cycle_scan = snap.scan
                     sheds = core.sheds
@@ -107,11 +108,13 @@ async def run_supervisor(
                         log.warning(
                             "MPC shed to ADVISORY: %s (re-engage with `tankctl mode mpc`)", core.shed_reason
                         )
-                    if await link.apply(actions):
+                    # The heartbeat goes with the actions (last): the PLC may scan on while this
+                    # tier publishes its own diagnostics.
+                    if await link.apply(actions, heartbeat):
                         core.push_refused()
                     await server.publish(actions.values)
-                heartbeat += 1
-                await link.heartbeat(heartbeat)
+                else:
+                    await link.heartbeat(heartbeat)
             except LinkError as e:
                 log.warning("%s", e)
     finally:

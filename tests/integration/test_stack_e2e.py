@@ -290,12 +290,12 @@ async def test_supervisor_killed_plc_falls_back_and_holds_the_level(tmp_path: Pa
     assert max(abs(x - 0.4) for x in after) < 0.02
 
 
-async def _run_lockstep_trace(tmp_path: Path, name: str) -> list[str]:
+async def _run_lockstep_trace(tmp_path: Path, name: str, config: Path = CONFIG) -> list[str]:
     base = free_base_port()
     urls = [
         f"opc.tcp://127.0.0.1:{base + k}/tanklab/{t}" for k, t in enumerate(("plant", "plc", "supervisor"))
     ]
-    common = ("--config", str(CONFIG), "--lockstep")
+    common = ("--config", str(config), "--lockstep")
     trace = tmp_path / f"{name}.csv"
     procs = [
         await TierProcess("plant", *common, "--port", str(base)).start(),
@@ -323,6 +323,21 @@ async def test_two_lockstep_runs_give_identical_traces(tmp_path: Path) -> None:
     assert a == b
     last = a[-1].split(",")
     assert float(last[1]) == pytest.approx(299.0)  # 300 scans of 1 s of model time
+
+
+async def test_two_lockstep_runs_with_the_mpc_writing_every_scan_give_identical_traces(tmp_path: Path) -> None:
+    """The supervisor's writes (RemoteMV and Mode with the heartbeat) reach the PLC while the
+    plant integrates, at a wall time that varies from run to run: the trace must not show it."""
+    data = yaml.safe_load(CONFIG.read_text())
+    data["supervisor"]["mode"] = "MPC"
+    config = tmp_path / "mpc.yaml"
+    config.write_text(yaml.safe_dump(data))
+    a = await _run_lockstep_trace(tmp_path, "a", config)
+    b = await _run_lockstep_trace(tmp_path, "b", config)
+    assert a == b
+    head, rows = a[0].split(","), [r.split(",") for r in a[1:]]
+    modes = {float(r[head.index("LIC1_Mode")]) for r in rows}
+    assert float(LoopMode.REMOTE) in modes  # the MPC drove the pumps through RemoteMV
 
 
 async def test_realtime_speed_20_smoke(tmp_path: Path) -> None:
