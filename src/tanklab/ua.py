@@ -122,20 +122,29 @@ def authorize(tag: Tag, user: User | None, old: Any = None, new: Any = None) -> 
     return None
 
 
+def _python_value(data_type: DataType, value: Any) -> Any:
+    """``value`` as the Python type a tag of ``data_type`` stores (arrays as lists of float)."""
+    if data_type == DataType.DOUBLE_ARRAY:
+        return [float(v) for v in value]
+    if data_type == DataType.DOUBLE:
+        return float(value)
+    if data_type in (DataType.INT32, DataType.UINT32):
+        return int(value)
+    if data_type == DataType.BOOLEAN:
+        return bool(value)
+    return str(value)
+
+
 def variant(tag: Tag, value: Any) -> ua.Variant:
     """The Variant a tag's value is stored as (arrays as Double arrays)."""
     if tag.data_type is None:
         raise ValueError(f"{tag.path} is a method, not a variable")
-    vt = _VARIANT[tag.data_type]
-    if tag.data_type == DataType.DOUBLE_ARRAY:
-        return ua.Variant([float(v) for v in value], vt, is_array=True)
-    if tag.data_type == DataType.DOUBLE:
-        return ua.Variant(float(value), vt)
-    if tag.data_type in (DataType.INT32, DataType.UINT32):
-        return ua.Variant(int(value), vt)
-    if tag.data_type == DataType.BOOLEAN:
-        return ua.Variant(bool(value), vt)
-    return ua.Variant(str(value), vt)
+    return _stored(tag.data_type, _python_value(tag.data_type, value))
+
+
+def _stored(data_type: DataType, value: Any) -> ua.Variant:
+    """The Variant of a value already of its Python type (:func:`_python_value`)."""
+    return ua.Variant(value, _VARIANT[data_type], is_array=data_type == DataType.DOUBLE_ARRAY)
 
 
 def _argument(arg: Any) -> ua.Argument:
@@ -443,11 +452,28 @@ class Publisher:
     nodes: dict[str, Node]
 
     async def publish(self, values: dict[str, Any]) -> None:
-        """Store each value (converted to its tag's Variant) with the server's timestamp."""
-        now = datetime.now(UTC)
+        """Store each value (converted to its tag's Variant) that differs from the node's current
+        value, with the server's timestamp.
+
+        A value equal to what the node holds is not stored again: its timestamps keep telling
+        when it last changed (OPC UA's meaning of SourceTimestamp), and a scan that republishes
+        some fifty values, most of them constant, costs only the ones that moved. The comparison
+        is against the address space, not a copy kept here, so a client's write in between is
+        seen. NaN never equals itself, so a NaN is stored every time.
+        """
+        now: datetime | None = None
         for path, value in values.items():
-            dv = ua.DataValue(variant(self.tags[path], value), SourceTimestamp=now, ServerTimestamp=now)
-            await self.server.write_attribute_value(self.nodes[path].nodeid, dv)
+            tag = self.tags[path]
+            if tag.data_type is None:
+                raise ValueError(f"{path} is a method, not a variable")
+            nodeid = self.nodes[path].nodeid
+            new = _python_value(tag.data_type, value)
+            old = self.server.read_attribute_value(nodeid).Value
+            if old is not None and old.VariantType == _VARIANT[tag.data_type] and old.Value == new:
+                continue
+            now = now or datetime.now(UTC)
+            dv = ua.DataValue(_stored(tag.data_type, new), SourceTimestamp=now, ServerTimestamp=now)
+            await self.server.write_attribute_value(nodeid, dv)
 
     async def read(self, path: str) -> Any:
         """Current value of a tag as stored in the address space."""

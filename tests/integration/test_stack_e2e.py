@@ -325,7 +325,9 @@ async def test_two_lockstep_runs_give_identical_traces(tmp_path: Path) -> None:
     assert float(last[1]) == pytest.approx(299.0)  # 300 scans of 1 s of model time
 
 
-async def test_two_lockstep_runs_with_the_mpc_writing_every_scan_give_identical_traces(tmp_path: Path) -> None:
+async def test_two_lockstep_runs_with_the_mpc_writing_every_scan_give_identical_traces(
+    tmp_path: Path,
+) -> None:
     """The supervisor's writes (RemoteMV and Mode with the heartbeat) reach the PLC while the
     plant integrates, at a wall time that varies from run to run: the trace must not show it."""
     data = yaml.safe_load(CONFIG.read_text())
