@@ -164,6 +164,43 @@ def _near_event(f: ScalarRhs, a: list[float], b: list[float]) -> bool:
     return False
 
 
+_STEP_PLANS_KEPT = 64
+"""Sub-step plans kept per network (a caller stepping by ever new lengths starts over)."""
+
+
+def _step_plan(net: TankNetwork, dt_s: float, max_substep_s: float | None) -> tuple[int, float, int]:
+    """(coarse sub-steps, their length [s], fine sub-steps per coarse one near an event) of a
+    step of ``dt_s`` (0 sub-steps for ``dt_s == 0``); validated and memoised per network, since a
+    co-simulation steps by the same scan period every time.
+
+    Raises
+    ------
+    ValueError
+        If ``dt_s`` is negative or not finite.
+    """
+    plans = net._step_plans
+    key = (dt_s, max_substep_s)
+    plan = plans.get(key)
+    if plan is not None:
+        return plan
+    if not dt_s >= 0 or not math.isfinite(dt_s):
+        raise ValueError(f"dt_s must be finite and >= 0, got {dt_s}")
+    if dt_s == 0:
+        plan = (0, 0.0, 1)
+    else:
+        coarse = rk4_substep_s(net) if max_substep_s is None else max_substep_s
+        n_sub = max(1, math.ceil(dt_s / coarse - 1e-9))
+        h = dt_s / n_sub
+        # near a non-smooth point the error of a long step is of low order in h, and the orifice
+        # law is at its steepest: redo it finely (automatic sub-steps only)
+        n_fine = math.ceil(h / event_substep_s(net) - 1e-9) if max_substep_s is None else 1
+        plan = (n_sub, h, n_fine)
+    if len(plans) >= _STEP_PLANS_KEPT:
+        plans.clear()
+    plans[key] = plan
+    return plan
+
+
 def step_rk4(
     net: TankNetwork,
     x: FloatArray,
@@ -190,20 +227,12 @@ def step_rk4(
     -------
     The state at ``t_s + dt_s``, levels projected into [0, Hmax].
     """
-    if not dt_s >= 0 or not math.isfinite(dt_s):
-        raise ValueError(f"dt_s must be finite and >= 0, got {dt_s}")
-    if dt_s == 0:
+    n_sub, h, n_fine = _step_plan(net, dt_s, max_substep_s)
+    if n_sub == 0:
         return x.copy()
-    refine = max_substep_s is None
-    coarse = rk4_substep_s(net) if max_substep_s is None else max_substep_s
-    n_sub = max(1, math.ceil(dt_s / coarse - 1e-9))
-    h = dt_s / n_sub
     f = ScalarRhs(net, u)
     rhs, rhs_at, outside = f.fn, f.fn_at, f.code.outside
     rk4 = rk4_step_for(len(x))
-    # near a non-smooth point the error of a long step is of low order in h, and the orifice law
-    # is at its steepest: redo it finely
-    n_fine = math.ceil(h / event_substep_s(net) - 1e-9) if refine else 1
     y = x.tolist()
     for _ in range(n_sub):
         # One check of both ends decides, as first checking the start alone and then both would:

@@ -351,6 +351,11 @@ class TankNetwork:
         return {}
 
     @cached_property
+    def _step_plans(self) -> dict[tuple[float, float | None], tuple[int, float, int]]:
+        """RK4 sub-step plans by (step, fixed sub-step) (``plant_sim.integrate``; a cache, not state)."""
+        return {}
+
+    @cached_property
     def _fixed_memo(self) -> dict[str, _FixedPart]:
         """The last :func:`_fixed_part` (a cache, not state: it never changes a result)."""
         return {}

@@ -195,10 +195,11 @@ class CoSimulation:
         tr.readings_m.append(readings)
         tr.commands.append(commands)
         tr.flows_m3_s.append(plant.pump_flows)
-        # setpoints, gains and modes change rarely: one read-only array per distinct value
-        tr.setpoints_m.append(self._rows.get("sp", tuple(lp.sp_m for lp in loops), _setpoint_row))
-        tr.gains.append(self._rows.get("gains", tuple(lp.applied for lp in loops), _gain_rows))
-        tr.modes.append(self._rows.get("modes", tuple(lp.mode for lp in loops), _mode_row))
+        # setpoints, gains and modes change rarely: one read-only array per distinct value (the
+        # keys built from lists: a generator's frames cost more than the tuple, every scan)
+        tr.setpoints_m.append(self._rows.get("sp", tuple([lp.sp_m for lp in loops]), _setpoint_row))
+        tr.gains.append(self._rows.get("gains", tuple([lp.applied for lp in loops]), _gain_rows))
+        tr.modes.append(self._rows.get("modes", tuple([lp.mode for lp in loops]), _mode_row))
 
     def run(self, duration_s: float, before_scan: Callable[[CoSimulation], None] | None = None) -> Trace:
         """Run for ``duration_s`` of model time (whole scans); return the trace."""

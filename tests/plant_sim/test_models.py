@@ -372,3 +372,20 @@ def test_scalar_rhs_equals_the_numpy_rhs(h, q, valves, leaks, dist, lag) -> None
     x = net.initial_state(np.array(h), np.array([5e-5, 0.0]))
     x[-4:] = [1e-3, 2e-3, 3e-4, 1e-5]
     assert np.allclose(ScalarRhs(net, u)(x.tolist()), net.rhs(0.0, x, u), rtol=1e-12, atol=1e-18)
+
+
+def test_step_lengths_are_validated_every_call_and_zero_steps_nothing() -> None:
+    """The memoised sub-step plan never lets a bad step length through (NaN, inf, negative: the
+    same error every time) and a zero step returns the state unchanged, as a copy."""
+    net = TankNetwork.from_config(load_site(ROOT / "configs/three_tank_energies_sim.yaml").plant)
+    n = net.n_tanks
+    u = PlantInputs(np.full(net.n_pumps, 5e-5), np.ones(net.n_valves), np.zeros(n), np.zeros(n))
+    x = net.initial_state(np.array([0.3, 0.2, 0.25]))
+    first = step_rk4(net, x, u, 1.0)
+    assert np.array_equal(step_rk4(net, x, u, 1.0), first)  # the memoised plan: the same bits
+    for bad in (math.nan, math.inf, -1.0):
+        for _ in range(2):
+            with pytest.raises(ValueError, match="dt_s must be finite and >= 0"):
+                step_rk4(net, x, u, bad)
+    same = step_rk4(net, x, u, 0.0)
+    assert np.array_equal(same, x) and same is not x
