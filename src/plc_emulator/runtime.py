@@ -9,7 +9,8 @@ Lock-step: no deadlines. Each scan ends with ``Plant.Sim.Advance(Ts, commands)``
 integrates one scan period and returns the next readings) and then waits, at most 2 s of wall
 time, for the supervisor to acknowledge the scan by changing ``Heartbeat``; a missing ack counts
 as a missed heartbeat, and once the watchdog has declared the supervisor lost the PLC stops
-waiting for it.
+waiting for it. The scan's values are published before the Advance call, so the supervisor reads
+and acknowledges them while the plant integrates (decision 0013).
 
 Retentive memory (``plc.retain_file``): SP, mode, applied gains with their source and latched
 trips are saved whenever they change and restored at start (warm restart), each value checked
@@ -69,7 +70,8 @@ def _save_retained(path: Path, data: dict[str, object]) -> None:
 
 async def _wait_event(event: asyncio.Event, timeout_s: float) -> bool:
     try:
-        await asyncio.wait_for(event.wait(), timeout_s)
+        async with asyncio.timeout(timeout_s):
+            await event.wait()
     except TimeoutError:
         return False
     return True

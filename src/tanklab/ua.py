@@ -602,11 +602,9 @@ class Link:
         if not self.healthy or self.client is None:
             raise LinkError(f"{self.name} link to {self.url} is down")
         try:
-            return list(
-                await asyncio.wait_for(
-                    self.client.read_attributes([self.nodes[p] for p in paths]), self.timeout_s
-                )
-            )
+            # asyncio.timeout, not wait_for: no extra task per request (a few us, every scan).
+            async with asyncio.timeout(self.timeout_s):
+                return list(await self.client.read_attributes([self.nodes[p] for p in paths]))
         except Exception as e:
             raise await self._fail("read", e) from e
 
@@ -617,14 +615,12 @@ class Link:
         paths = list(values)
         dvs = [ua.DataValue(variant(self.tags[p], values[p])) for p in paths]
         try:
-            return list(
-                await asyncio.wait_for(
-                    self.client.uaclient.write_attributes(
+            async with asyncio.timeout(self.timeout_s):
+                return list(
+                    await self.client.uaclient.write_attributes(
                         [self.nodes[p].nodeid for p in paths], dvs, ua.AttributeIds.Value
-                    ),
-                    self.timeout_s,
+                    )
                 )
-            )
         except Exception as e:
             raise await self._fail("write", e) from e
 
@@ -635,9 +631,8 @@ class Link:
             raise LinkError(f"{self.name} link to {self.url} is down")
         parent = self.client.get_node(ua.NodeId(method_path.rsplit(".", 1)[0], self.idx))
         try:
-            result = await asyncio.wait_for(
-                parent.call_method(ua.NodeId(method_path, self.idx), *args), self.timeout_s
-            )
+            async with asyncio.timeout(self.timeout_s):
+                result = await parent.call_method(ua.NodeId(method_path, self.idx), *args)
         except ua.UaStatusCodeError:
             raise
         except Exception as e:
