@@ -167,8 +167,10 @@ class PlantSimulator:
             and commands.dtype == np.float64
             and commands.shape == self._cmd_shape
             and all(
-                lo <= v <= hi and math.isfinite(v)
-                for v, lo, hi in zip(commands.tolist(), self._cmd_lo, self._cmd_hi, strict=True)
+                [
+                    lo <= v <= hi and math.isfinite(v)
+                    for v, lo, hi in zip(commands.tolist(), self._cmd_lo, self._cmd_hi, strict=True)
+                ]
             )
         ):
             self._commanded = commands.copy()

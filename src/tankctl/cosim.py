@@ -156,9 +156,9 @@ class CoSimulation:
         commands = out.commands  # the scan's own copy: the trace keeps it, read-only
         commands.flags.writeable = False
         if self.io_healthy:
-            net = self.plant.net
-            # np.minimum / np.maximum: np.clip's result at a third of its call overhead
-            self.plant.set_commands(np.minimum(np.maximum(commands, net.pump_cmd_min), net.pump_cmd_max))
+            # within the pumps' ranges already: the PLC clamps its outputs to the same
+            # site.plant.pumps ranges as the plant's (and set_commands refuses anything else)
+            self.plant.set_commands(commands)
         self._record(commands, readings)
         self._supervise(out.values)
         self.plant.advance(self.ts_s)

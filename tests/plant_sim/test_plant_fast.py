@@ -85,6 +85,32 @@ def test_transmitter_read_equals_array_form(
     )
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    levels=st.lists(st.one_of(floats, st.sampled_from([np.nan, np.inf, -np.inf])), min_size=3, max_size=3),
+    std=st.lists(st.sampled_from([0.0, 1e-4, 3e-3]), min_size=3, max_size=3),
+    quant=st.lists(st.sampled_from([0.0, 1e-4, 1e-3, 0.0123]), min_size=3, max_size=3),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_transmitter_read_without_faults_equals_array_form(
+    levels: list[float], std: list[float], quant: list[float], seed: int
+) -> None:
+    """The no-fault path (no fault on any transmitter, the usual scan) against the array form,
+    non-finite levels included; the readings handed out are not the bank's own ``last``."""
+    bank = TransmitterBank.from_config(SIM)
+    bank.noise_std_m = np.array(std)
+    bank.quantization_m = np.array(quant)
+    bank.rng = np.random.default_rng(seed)
+    z = np.random.default_rng(seed).standard_normal(3)
+    with np.errstate(invalid="ignore"):  # the oracle's np.round(inf / q) * q on an infinite level
+        expected = _array_read(bank, z, np.array(levels), 5.0)
+    got = bank.read(np.array(levels), 5.0)
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(bank.last, expected)
+    got[0] = -1.0
+    assert bank.last[0] != -1.0
+
+
 cmd_values = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True), st.floats(-1e-4, 2e-4), st.floats(-100.0, 3000.0)
 )
