@@ -78,28 +78,12 @@ class TransmitterBank:
         block draw gives the same numbers but leaves the generator ahead, and saves < 1 us).
         """
         z = self.rng.standard_normal(levels_m.shape).tolist()
-        if not any(self.fault):  # no fault anywhere (NONE is 0): the same operations, no checks
-            out = []
-            for h, std, zi, q, lo, hi in zip(
-                levels_m.tolist(),
-                self.noise_std_m.tolist(),
-                z,
-                self.quantization_m.tolist(),
-                self.range_min_m.tolist(),
-                self.range_max_m.tolist(),
-                strict=True,
-            ):
-                y = h + std * zi
-                if q > 0.0 and math.isfinite(y):
-                    y = round(y / q) * q
-                out.append(lo if y < lo else hi if y > hi else y)
-            self.last = np.array(out)
-            return self.last.copy()
         out = []
-        for i, (h, std, q, lo, hi, f) in enumerate(
+        for i, (h, std, zi, q, lo, hi, f) in enumerate(
             zip(
                 levels_m.tolist(),
                 self.noise_std_m.tolist(),
+                z,
                 self.quantization_m.tolist(),
                 self.range_min_m.tolist(),
                 self.range_max_m.tolist(),
@@ -107,20 +91,21 @@ class TransmitterBank:
                 strict=True,
             )
         ):
-            if f == SensorFault.STUCK:
+            # ``if f``: NONE is 0, so a healthy transmitter (the usual scan) skips the fault checks
+            if f and f == SensorFault.STUCK:
                 out.append(float(self.last[i]))
                 continue
-            y = h + std * z[i]
-            if f == SensorFault.BIAS:
-                y += float(self.fault_value[i])
-            elif f == SensorFault.DRIFT:
-                y += float(self.fault_value[i]) * (t_s - float(self.fault_since_s[i]))
+            y = h + std * zi
+            if f:
+                if f == SensorFault.BIAS:
+                    y += float(self.fault_value[i])
+                elif f == SensorFault.DRIFT:
+                    y += float(self.fault_value[i]) * (t_s - float(self.fault_since_s[i]))
             if q > 0.0 and math.isfinite(y):  # round(inf) raises; numpy keeps inf and NaN
                 y = round(y / q) * q
-            y = lo if y < lo else hi if y > hi else y
-            out.append(y)
+            out.append(lo if y < lo else hi if y > hi else y)
         self.last = np.array(out)
-        return np.array(out)
+        return self.last.copy()
 
 
 def switch_states(
