@@ -79,7 +79,7 @@ class PlcLink:
         """
         values: dict[str, object] = {f"PLC.{lp}.RemoteMV": mv for lp, mv in actions.remote_mv.items()}
         values.update({f"PLC.{lp}.Mode": int(m) for lp, m in actions.modes.items()})
-        beat: dict[str, object] = {} if heartbeat is None else {"PLC.Supervisor.Heartbeat": heartbeat % 2**32}
+        beat = {} if heartbeat is None else _heartbeat_value(heartbeat)
         if not actions.gains:
             values.update(beat)
             beat = {}
@@ -104,7 +104,7 @@ class PlcLink:
 
     async def heartbeat(self, value: int) -> None:
         """Write the heartbeat (UInt32, wraps)."""
-        await self._write({"PLC.Supervisor.Heartbeat": value % 2**32})
+        await self._write(_heartbeat_value(value))
 
     async def _write(self, values: dict[str, object]) -> None:
         results = await self.link.write(values)
@@ -114,3 +114,8 @@ class PlcLink:
 
     async def close(self) -> None:
         await self.link.close()
+
+
+def _heartbeat_value(value: int) -> dict[str, object]:
+    """The heartbeat's Write item: ``PLC.Supervisor.Heartbeat`` is a UInt32, so the count wraps."""
+    return {"PLC.Supervisor.Heartbeat": value % 2**32}
