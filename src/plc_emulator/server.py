@@ -18,8 +18,8 @@ from typing import Any
 from asyncua import ua
 
 from plc_emulator.program import GainStatus, PlcProgram
+from plc_emulator.writes import HEARTBEAT_PATH, apply_write
 from tanklab.config import SiteConfig
-from tanklab.enums import LoopMode
 from tanklab.tags import Tag, plc_tags, tags_by_path
 from tanklab.ua import MethodHandler, Publisher
 from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
@@ -81,31 +81,17 @@ class PlcServer:
     # ---- writes and calls ---------------------------------------------------------------
 
     def _on_write(self, tag: Tag, value: Any) -> ua.StatusCode | None:
-        parts = tag.path.split(".")
         try:
-            if parts[1] == "Supervisor" and parts[2] == "Heartbeat":
-                self.program.heartbeat(int(value))
-                if self.on_heartbeat is not None:
-                    self.on_heartbeat()
-                return None
-            loop, item = parts[1], parts[2]
-            if item == "SP":
-                self.program.set_sp(loop, float(value))
-            elif item == "SPLow":
-                self.program.set_sp_limits(loop, low_m=float(value))
-            elif item == "SPHigh":
-                self.program.set_sp_limits(loop, high_m=float(value))
-            elif item == "Mode":
-                self.program.set_mode(loop, LoopMode(int(value)))
-            elif item == "ManualMV":
-                self.program.set_manual_mv(loop, float(value))
-            elif item == "RemoteMV":
-                self.program.set_remote_mv(loop, float(value))
-            else:
-                return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+            applied = apply_write(self.program, tag.path, value)
         except (ValueError, KeyError) as e:
             log.info("write to %s refused: %s", tag.path, e)
             return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
+        if not applied:
+            return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+        if tag.path == HEARTBEAT_PATH:
+            if self.on_heartbeat is not None:
+                self.on_heartbeat()
+            return None
         log.info("%s := %r", tag.path, value)
         return None
 
