@@ -1,25 +1,58 @@
-"""MIMO discrete PID in velocity form, one loop per actuator (digest 2.1).
+"""MIMO discrete PID in velocity form, two degrees of freedom, one loop per actuator (digest 2.1).
 
-Per scan k (scan period Ts [s]), for loop j with working setpoint w_j and measured PV y_j::
+The positional law this block increments is the ISA (standard) form with setpoint weights b on
+the proportional and c on the derivative term and a first-order filter on the derivative, for
+loop j with working setpoint w_j and measured PV y_j (s_j = +1 reverse acting, -1 direct)::
 
-    e_j(k) = s_j (w_j(k) - y_j(k))          s_j = +1 reverse acting (default), -1 direct acting
-    d_j(k) = alpha d_j(k-1) + (1 - alpha) (e_j(k) - e_j(k-1)) / Ts        (filtered de/dt)
-    alpha  = Tf / (Tf + Ts)      (backward-Euler discretisation of 1 / (Tf s + 1); Tf = 0 gives alpha = 0)
+    u_j(t) = Kp e_P(t) + Ki int e(t) dt + Kd D(t)
+    e(t)   = s_j (w - y)          e_P(t) = s_j (b_j w - y)          e_D(t) = s_j (c_j w - y)
+    Tf dD/dt + D = d e_D / dt                       (Tf: the filter's time constant [s])
+
+The integral acts on the true error e, so the steady state has y = w whatever b and c are; b and
+c only shape the response to setpoint changes: b = 0 puts no proportional kick on a setpoint step,
+c = 0 (derivative on the measurement) no derivative kick. b = c = 1 is the one-degree-of-freedom
+PID on the error (the digest's form). In the ISA notation Tf = Td / N with Td = Kd / Kp: the block
+takes Tf, which does not move when a supervisor changes Kp or Kd (and stays defined for the
+digest's negative Kd).
+
+Per scan k (scan period Ts [s]) the block runs the incremental form of that law. Backward Euler on
+the filter, D(k) = d_j(k), and the memory (w_j(k-1), y_j(k-1)) of the last good scan give::
+
+    e_j(k)    = s_j (w_j(k) - y_j(k))
+    De_P,j(k) = s_j (b_j w_j(k) - y_j(k)) - s_j (b_j w_j(k-1) - y_j(k-1))
+    De_D,j(k) = s_j (c_j w_j(k) - y_j(k)) - s_j (c_j w_j(k-1) - y_j(k-1))
+    d_j(k)    = alpha d_j(k-1) + (1 - alpha) De_D,j(k) / Ts        (filtered d e_D / dt)
+    alpha     = Tf / (Tf + Ts)      (backward-Euler discretisation of 1 / (Tf s + 1); Tf = 0: alpha = 0)
 
 and for actuator i::
 
-    dP_i = sum_j Kp_ij (e_j(k) - e_j(k-1))
+    dP_i = sum_j Kp_ij De_P,j(k)
     dI_i = sum_j Ki_ij Ts e_j(k)
     dD_i = sum_j Kd_ij (d_j(k) - d_j(k-1))
     u_i(k) = sat_[u_min, u_max]( ratelimit_du_max( u_i(k-1) + dP_i + dI_i + dD_i ) )
 
-With Tf = 0 the D increment is exactly (Kd_ij / Ts)(e_j(k) - 2 e_j(k-1) + e_j(k-2)), the
-digest's form. u_i(k-1) is always the value actually applied (after clamping and rate limiting,
-in every mode), so clamping is anti-windup by itself and gain changes are bumpless.
+Summed over scans at constant gains the increments give back the positional law (dP sums to
+Kp e_P(k) - Kp e_P(-1), dD to Kd d(k) - Kd d(-1)), so the velocity form is that law up to its
+initial condition.
+
+Bumpless by construction: the memory is the pair (w(k-1), y(k-1)), not an error, and both weighted
+errors of the previous scan are recomputed with the weights in force now, so changing b or c
+between scans adds no step (a positional form would jump by Kp (b_new - b_old) w); new gains only
+multiply increments, so a gain change at a scan boundary moves u by the new gains' increment and
+never by a gain times an accumulated state (a positional form jumps by (Kp_new - Kp_old) e); mode
+switches start from the applied MV (below).
+
+With b = c = 1 and Tf = 0 the law is exactly the digest's u(k) = u(k-1) + Kp De + Ki Ts e
++ (Kd / Ts) D2e, bit for bit (1.0 w is w, and the recomputed e(k-1) is the same float as the
+stored one was); the block's defaults are b = c = 1, and the site config's defaults (b = 1,
+c = 0: the derivative on the measurement) are passed by the PLC program.
+
+u_i(k-1) is always the value actually applied (after clamping and rate limiting, in every mode),
+so clamping is anti-windup by itself.
 
 Units: e and PV in the PV's unit (m), u in the actuator's unit (m^3/s or rpm), Kp in u per PV
-unit, Ki in u per (PV unit s), Kd in u s per PV unit, Ts and Tf in s, the setpoint ramp rate in
-PV units per s, the output rate limit du_max in u per scan.
+unit, Ki in u per (PV unit s), Kd in u s per PV unit, Ts and Tf in s, b and c dimensionless, the
+setpoint ramp rate in PV units per s, the output rate limit du_max in u per scan.
 
 Loops are indexed 0..n-1; loop j drives actuator j (so gain matrices are n x n, diagonal for
 decentralised PID, off-diagonal entries couple loop j's error into actuator i).
@@ -34,8 +67,8 @@ PV quality: a loop whose PV is flagged bad (or is not finite) contributes no inc
 error memory is frozen; after ``pv_bad_scans`` consecutive bad scans a loop in AUTO or REMOTE
 applies its substitute (``hold``: keep the applied MV; ``value``: go to ``substitute_mv`` at the
 rate limit). On the first good scan after a bad spell the loop's memory is re-initialised to the
-current error (e(k-1) = e(k), filtered derivative 0), so it resumes from the applied MV with an
-integral-only move.
+current scan (w(k-1) = w(k), y(k-1) = y(k), so e(k-1) = e(k); filtered derivative 0), so it
+resumes from the applied MV with an integral-only move.
 
 Single-loop fast path: a block of one loop (n = 1, every loop of a decentralised PID) runs the
 law above on Python floats instead of 1-element numpy arrays. Numpy's per-call overhead (some
@@ -49,7 +82,7 @@ adds to +0.0); ``tests/plc_emulator/test_pid.py::test_scalar_fast_path_matches_n
 runs random configurations, gains, modes, writes, rate limits, ramps, saturation and bad PVs
 through both and compares every output, and ``test_float_path_is_bit_for_bit_its_first_form*``
 hold the float path to its first form (builtin min / max) bit for bit, signed zeros included.
-The state (u(k-1), error memory, held values, counters) is kept in Python lists for every n, so
+The state (u(k-1), the (w, y) memory, held values, counters) is kept in Python lists for every n, so
 both paths share it; the n-loop path converts it to arrays per step. `Pid.step_siso` is the
 scalar entry point the PLC program uses (no arrays at all); `Pid.step` on a one-loop block uses
 the same core and wraps its results in arrays.
@@ -96,6 +129,14 @@ def _per_loop(name: str, value: float | Sequence[float], n: int) -> FloatArray:
     if arr.shape != (n,):
         raise ValueError(f"{name} must be a scalar or have shape ({n},), got shape {arr.shape}")
     return arr.copy()
+
+
+def _weights(name: str, value: float | Sequence[float], n: int) -> FloatArray:
+    """Setpoint weights per loop: finite, in [0, 1]."""
+    arr = _per_loop(name, value, n)
+    if np.any(~np.isfinite(arr)) or np.any(arr < 0.0) or np.any(arr > 1.0):
+        raise ValueError(f"{name} must lie in [0, 1] for every loop")
+    return arr
 
 
 def _check_loop(loop: int, n: int) -> int:
@@ -207,7 +248,14 @@ class PidConfig:
     du_max : float or sequence, optional
         Output rate limit |u(k) - u(k-1)| <= du_max per scan [u], > 0; None: no rate limit.
     d_filter_tf_s : float
-        Derivative filter time constant Tf [s], >= 0 (0: unfiltered D).
+        Derivative filter time constant Tf [s], >= 0 (0: unfiltered D). Tf = Td / N in the ISA
+        notation (Td = Kd / Kp).
+    setpoint_weight_p : float or sequence of n floats
+        Setpoint weight b of the proportional term, in [0, 1] (default 1: P on the error; 0: P on
+        the measurement only, no proportional kick on a setpoint step).
+    setpoint_weight_d : float or sequence of n floats
+        Setpoint weight c of the derivative term, in [0, 1] (default 1: D on the error, the
+        digest's form; 0: D on the measurement, no derivative kick on a setpoint step).
     sp_min, sp_max : float or sequence
         Setpoint limits [PV unit], sp_min <= sp_max (infinite allowed). Targets outside are clamped.
     sp_rate : float or sequence, optional
@@ -236,6 +284,8 @@ class PidConfig:
     u_max: float | Sequence[float]
     du_max: float | Sequence[float] | None = None
     d_filter_tf_s: float = 0.0
+    setpoint_weight_p: float | Sequence[float] = 1.0
+    setpoint_weight_d: float | Sequence[float] = 1.0
     sp_min: float | Sequence[float] = -np.inf
     sp_max: float | Sequence[float] = np.inf
     sp_rate: float | Sequence[float] | None = None
@@ -262,6 +312,8 @@ class _Resolved:
     hi: FloatArray
     du_max: FloatArray  # inf where no rate limit
     alpha: float
+    b: FloatArray
+    c: FloatArray
     sp_lo: FloatArray
     sp_hi: FloatArray
     sp_step: FloatArray  # sp_rate * Ts, inf where no ramp
@@ -301,6 +353,9 @@ def _resolve(c: PidConfig) -> _Resolved:
     tf = _finite_scalar("d_filter_tf_s", c.d_filter_tf_s)
     if tf < 0.0:
         raise ValueError(f"d_filter_tf_s must be >= 0, got {tf}")
+
+    b = _weights("setpoint_weight_p", c.setpoint_weight_p, n)
+    cw = _weights("setpoint_weight_d", c.setpoint_weight_d, n)
 
     sp_lo = _per_loop("sp_min", c.sp_min, n)
     sp_hi = _per_loop("sp_max", c.sp_max, n)
@@ -374,6 +429,8 @@ def _resolve(c: PidConfig) -> _Resolved:
         hi=hi,
         du_max=du,
         alpha=tf / (tf + ts),
+        b=b,
+        c=cw,
         sp_lo=sp_lo,
         sp_hi=sp_hi,
         sp_step=sp_step,
@@ -499,7 +556,10 @@ class Pid:
         n = r.n
         # Per-loop state as Python lists (shared by both paths; see the module docstring).
         self._u: list[float] = r.initial_mv.tolist()  # u(k-1), the applied value
-        self._e_prev: list[float] = [0.0] * n  # e(k-1)
+        # The memory of the last good scan, (w(k-1), y(k-1)), from which e(k-1) and both weighted
+        # errors are recomputed with the weights in force (zeros: e(-1) = e(-2) = 0).
+        self._w_mem: list[float] = [0.0] * n
+        self._y_mem: list[float] = [0.0] * n
         self._d_prev: list[float] = [0.0] * n  # filtered derivative d(k-1)
         self._needs_init: list[bool] = [r.first_error] * n  # re-initialise memory to e(k) on next good scan
         self._w: list[float] = [0.0] * n  # working setpoint
@@ -528,6 +588,8 @@ class Pid:
                 bool(r.subst_value[0]),
                 float(r.substitute_mv[0]),
             )
+        self._b: list[float] = r.b.tolist()
+        self._c: list[float] = r.c.tolist()
         self._gains = gains
         self._one_gains = (0.0, 0.0, 0.0)
         self._use_gains(gains)
@@ -569,6 +631,11 @@ class Pid:
         return np.array(self._remote, dtype=np.float64)
 
     @property
+    def setpoint_weights(self) -> tuple[FloatArray, FloatArray]:
+        """(b, c) per loop: the setpoint weights of the P and D terms (copies)."""
+        return np.array(self._b, dtype=np.float64), np.array(self._c, dtype=np.float64)
+
+    @property
     def working_sp(self) -> FloatArray:
         """Working setpoint per loop after the last step [PV unit] (copy; zeros before the first step)."""
         return np.array(self._w, dtype=np.float64)
@@ -600,6 +667,31 @@ class Pid:
         self._gains = gains
         if self._r.n == 1:
             self._one_gains = (float(gains.Kp[0, 0]), float(gains.Ki[0, 0]), float(gains.Kd[0, 0]))
+
+    def set_setpoint_weights(self, loop: int, b: float | None = None, c: float | None = None) -> None:
+        """Change one loop's setpoint weights from the next `step` on, bumplessly.
+
+        The error memory is (w(k-1), y(k-1)), and the next step recomputes the previous weighted
+        errors with the new weights, so the change itself adds no increment.
+
+        Parameters
+        ----------
+        loop : int
+            Loop index in [0, n).
+        b, c : float, optional
+            New weight of the P term, of the D term, each in [0, 1]; None keeps the current one.
+
+        Raises
+        ------
+        ValueError
+            A weight outside [0, 1] or not finite; nothing changes.
+        """
+        j = _check_loop(loop, self._r.n)
+        new_b = self._b[j] if b is None else _finite_scalar("b", b)
+        new_c = self._c[j] if c is None else _finite_scalar("c", c)
+        if not (0.0 <= new_b <= 1.0 and 0.0 <= new_c <= 1.0):
+            raise ValueError(f"setpoint weights must lie in [0, 1], got b = {new_b}, c = {new_c}")
+        self._b[j], self._c[j] = new_b, new_c
 
     def set_mode(self, loop: int, mode: LoopMode, mv: float | None = None) -> None:
         """Switch one loop's mode, bumplessly.
@@ -749,6 +841,7 @@ class Pid:
         """
         lo, hi, du_max, sp_lo, sp_hi, sp_step, sign, alpha, ts, n_bad, subst_value, subst_mv = self._one
         kp, ki, kd = self._one_gains
+        b, c = self._b[0], self._c[0]
         good = pv_good and math.isfinite(pv)
 
         # Working setpoint: clamp the target, then ramp toward it. Every min(max(x, lo), hi) of
@@ -773,19 +866,20 @@ class Pid:
         if good:
             e = sign * (w - pv)
             if self._needs_init[0]:
-                e_prev = e
+                w_mem, y_mem = w, pv
                 d_prev = 0.0
             else:
-                e_prev = self._e_prev[0]
+                w_mem, y_mem = self._w_mem[0], self._y_mem[0]
             e_used = e
-            de = e_used - e_prev
-            d_new = alpha * d_prev + (1.0 - alpha) * de / ts
+            de_p = sign * (b * w - pv) - sign * (b * w_mem - y_mem)
+            de_d = sign * (c * w - pv) - sign * (c * w_mem - y_mem)
+            d_new = alpha * d_prev + (1.0 - alpha) * de_d / ts
         else:
             e = math.nan
             e_used = 0.0
-            de = 0.0
+            de_p = 0.0
             d_new = d_prev
-        p = kp * de
+        p = kp * de_p
         i = ki * (ts * e_used)
         d = kd * (d_new - d_prev)
         u_prev = self._u[0]
@@ -812,7 +906,8 @@ class Pid:
 
         self._u[0] = u
         if good:
-            self._e_prev[0] = e_used
+            self._w_mem[0] = w
+            self._y_mem[0] = pv
         self._d_prev[0] = d_new
         self._needs_init[0] = not good
         # tuple.__new__ skips the NamedTuple's Python-level __new__ (a third of this method's cost)
@@ -841,18 +936,22 @@ class Pid:
         subst_loop = (~good) & (bad_count >= r.pv_bad_scans)
 
         # Errors; a bad loop contributes nothing and its memory is frozen.
-        e = np.where(good, r.sign * (w - np.where(good, pv_arr, 0.0)), np.nan)
+        y = np.where(good, pv_arr, 0.0)
+        e = np.where(good, r.sign * (w - y), np.nan)
         needs_init = np.array(self._needs_init, dtype=bool)
         reinit = good & needs_init
-        e_prev = np.where(reinit, e, np.array(self._e_prev))
+        w_mem = np.where(reinit, w, np.array(self._w_mem))
+        y_mem = np.where(reinit, y, np.array(self._y_mem))
         d_prev = np.where(reinit, 0.0, np.array(self._d_prev))
 
+        b, c = np.array(self._b), np.array(self._c)
         e_used = np.where(good, e, 0.0)
-        de = np.where(good, e_used - e_prev, 0.0)
-        d_new = np.where(good, r.alpha * d_prev + (1.0 - r.alpha) * de / ts, d_prev)
+        de_p = np.where(good, r.sign * (b * w - y) - r.sign * (b * w_mem - y_mem), 0.0)
+        de_d = np.where(good, r.sign * (c * w - y) - r.sign * (c * w_mem - y_mem), 0.0)
+        d_new = np.where(good, r.alpha * d_prev + (1.0 - r.alpha) * de_d / ts, d_prev)
         dd = d_new - d_prev
 
-        p = g.Kp @ de
+        p = g.Kp @ de_p
         i = g.Ki @ (ts * e_used)
         d = g.Kd @ dd
         u_prev = np.array(self._u)
@@ -876,7 +975,8 @@ class Pid:
         self._w = w.tolist()
         self._bad_count = bad_count.tolist()
         self._u = u.tolist()
-        self._e_prev = np.where(good, e_used, e_prev).tolist()
+        self._w_mem = np.where(good, w, w_mem).tolist()
+        self._y_mem = np.where(good, y, y_mem).tolist()
         self._d_prev = d_new.tolist()
         self._needs_init = (~good).tolist()
 

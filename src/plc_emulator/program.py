@@ -361,6 +361,8 @@ class PlcProgram:
             if any(lp.spec.du_max for lp in loops)
             else None,
             d_filter_tf_s=loops[0].spec.derivative_filter_s,
+            setpoint_weight_p=[lp.spec.setpoint_weight_p for lp in loops],
+            setpoint_weight_d=[lp.spec.setpoint_weight_d for lp in loops],
             sp_min=[lp.spec.sp_min_m * lp.scale for lp in loops],
             sp_max=[lp.spec.sp_max_m * lp.scale for lp in loops],
             sp_rate=[(lp.spec.sp_ramp_m_s or math.inf) * lp.scale for lp in loops]

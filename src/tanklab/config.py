@@ -382,7 +382,20 @@ class LoopSpec(Model):
         default_factory=dict,
         description="Off-diagonal PID gains on other loops' errors, keyed by loop name (MIMO).",
     )
-    derivative_filter_s: NonNegFloat = Field(0.0, description="Time constant of the D filter [s]; 0 = none.")
+    derivative_filter_s: NonNegFloat = Field(
+        0.0,
+        description="Time constant Tf of the first-order D filter [s] (Tf = Td / N, Td = Kd / Kp); 0 = none.",
+    )
+    setpoint_weight_p: Fraction = Field(
+        1.0,
+        description="Setpoint weight b of the P term (block pid): P acts on b SP - PV; 1 = on the error, "
+        "0 = no proportional kick on a setpoint step.",
+    )
+    setpoint_weight_d: Fraction = Field(
+        0.0,
+        description="Setpoint weight c of the D term (block pid): D acts on c SP - PV; 0 = derivative on "
+        "the measurement (no derivative kick on a setpoint step), 1 = on the error (the digest's form).",
+    )
     gain_box: GainBox | None = Field(None, description="Admissible SetGains range (block pid).")
     nlpi: NlpiSpec | None = Field(None, description="Parameters of block nlpi.")
     mrac: MracSpec | None = Field(None, description="Parameters of block mrac.")

@@ -6,6 +6,7 @@ bumpless mode switches and gain changes) on arbitrary finite inputs.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 import struct
@@ -126,6 +127,80 @@ def test_derivative_filter() -> None:
     res = [filt.step([1.0], [0.0]) for _ in range(3)]
     assert [r.mv[0] for r in res] == pytest.approx([0.5, 0.25, 0.125])
     assert [r.d[0] for r in res] == pytest.approx([0.5, -0.25, -0.125])
+
+
+# --------------------------------------------------------------------------- two degrees of freedom
+def test_setpoint_step_with_c_zero_gives_no_derivative_kick() -> None:
+    # Kd = 2 only, Ts = 1, PV held at 0.3, the memory initialised to the first scan (settled at
+    # SP = PV = 0.3: no move). Setpoint step 0.3 -> 0.5 at k = 1. c = 1 (D on the error):
+    # De_D = 0.2, D2e kick u = Kd De_D / Ts = 0.4 at k = 1, back to 0 at k = 2 (D increment -0.4).
+    # c = 0 (D on the measurement): e_D = -PV is constant, so De_D = 0 and u stays at 0.
+    on_error, on_pv = (
+        siso(0.0, 0.0, 2.0, setpoint_weight_d=c, init_memory="first_error") for c in (1.0, 0.0)
+    )
+    for pid in (on_error, on_pv):
+        assert pid.step([0.3], [0.3]).mv[0] == 0.0
+    kick = on_error.step([0.5], [0.3])
+    assert kick.mv[0] == pytest.approx(0.4, abs=1e-12) and kick.d[0] == pytest.approx(0.4, abs=1e-12)
+    assert on_error.step([0.5], [0.3]).d[0] == pytest.approx(-0.4, abs=1e-12)
+    quiet = on_pv.step([0.5], [0.3])
+    assert quiet.mv[0] == 0.0 and quiet.d[0] == 0.0 and quiet.error[0] == pytest.approx(0.2)
+    # ... while a PV move still acts through D: PV 0.3 -> 0.25 gives De_D = +0.05, u = 2 * 0.05.
+    assert on_pv.step([0.5], [0.25]).d[0] == pytest.approx(0.1, abs=1e-12)
+
+
+def test_setpoint_step_with_b_zero_gives_no_proportional_kick() -> None:
+    # Kp = 3, Ki = 0.5, Ts = 1, settled at SP = PV = 0.3 (memory initialised to the first scan).
+    # SP 0.3 -> 0.5 at k = 1, PV held. b = 1: P = Kp De = 3 (0.2) = 0.6, I = 0.5 (0.2) = 0.1,
+    # u = 0.7. b = 0: e_P = -PV constant, P = 0, I unchanged (the integral acts on SP - PV), u = 0.1;
+    # b = 0.5: P = 3 (0.5 * 0.2) = 0.3, u = 0.4.
+    for b, p, u in ((1.0, 0.6, 0.7), (0.0, 0.0, 0.1), (0.5, 0.3, 0.4)):
+        pid = siso(3.0, 0.5, 0.0, setpoint_weight_p=b, init_memory="first_error")
+        assert pid.step([0.3], [0.3]).mv[0] == 0.0
+        r = pid.step([0.5], [0.3])
+        assert (r.p[0], r.i[0], r.mv[0]) == pytest.approx((p, 0.1, u), abs=1e-12), b
+        # the next scan (nothing moves): P and D increments 0, I keeps integrating SP - PV
+        r = pid.step([0.5], [0.3])
+        assert (r.p[0], r.i[0]) == pytest.approx((0.0, 0.1), abs=1e-12)
+
+
+def test_filtered_derivative_on_measurement_step_response() -> None:
+    # Kd = 1 only, Ts = 1, Tf = 3: alpha = 3 / 4 = 0.75, c = 0. PV steps 0 -> -1 at k = 0 (from a
+    # zero memory, SP 0): De_D = -(PV(k) - PV(k-1)) = +1 at k = 0 only. d(k) = 0.25 * 0.75^k and
+    # the D increments telescope, u(k) = Kd d(k) = 0.25, 0.1875, 0.140625, 0.10546875.
+    pid = siso(0.0, 0.0, 1.0, d_filter_tf_s=3.0, setpoint_weight_d=0.0)
+    us = [pid.step([0.0], [-1.0]).mv[0] for _ in range(4)]
+    assert us == pytest.approx([0.25, 0.1875, 0.140625, 0.10546875], abs=1e-15)
+
+
+def test_setpoint_weight_change_is_bumpless() -> None:
+    # Settled at SP 0.5, PV 0.3 (e = 0.2) with Kp = 3, Ki = 0: u constant. Changing b (or c) between
+    # scans must not move u: the memory is (w, y), so e_P(k-1) is recomputed with the new b.
+    # A memory of errors would add Kp (b_new - b_old) w = 3 (0 - 1) 0.5 = -1.5.
+    pid = siso(3.0, 0.0, 2.0, init_memory="first_error", d_filter_tf_s=1.0)
+    for _ in range(5):
+        u = pid.step([0.5], [0.3]).mv[0]
+    pid.set_setpoint_weights(0, b=0.0, c=0.0)
+    r = pid.step([0.5], [0.3])
+    assert r.mv[0] == u and r.p[0] == 0.0 and r.d[0] == 0.0
+    assert [w.tolist() for w in pid.setpoint_weights] == [[0.0], [0.0]]
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        pid.set_setpoint_weights(0, b=1.5)
+    with pytest.raises(ValueError, match="finite"):
+        pid.set_setpoint_weights(0, c=math.nan)
+    assert [w.tolist() for w in pid.setpoint_weights] == [[0.0], [0.0]]  # refused: unchanged
+
+
+def test_weights_do_not_change_the_steady_state() -> None:
+    # The integral acts on SP - PV whatever b and c: at SP = PV every increment is 0 and with
+    # SP != PV the integral keeps moving (b, c change only the setpoint response).
+    for b, c in itertools.product((0.0, 0.5, 1.0), repeat=2):
+        pid = siso(2.0, 0.25, 1.0, setpoint_weight_p=b, setpoint_weight_d=c, init_memory="first_error")
+        pid.step([0.4], [0.4])
+        r = pid.step([0.4], [0.4])
+        assert r.mv[0] == 0.0
+        r = pid.step([0.4], [0.3])  # a PV disturbance: the same increments for every b, c
+        assert (r.p[0], r.i[0], r.d[0]) == pytest.approx((0.2, 0.025, 0.1), abs=1e-12)
 
 
 def test_setpoint_limits_and_ramp() -> None:
@@ -355,6 +430,9 @@ def test_gain_change_is_bumpless() -> None:
         ({"u_min": [0.0, 1.0]}, ValueError, "shape"),
         ({"n_loops": 1.0}, TypeError, "n_loops"),
         ({"direct_acting": 1}, TypeError, "direct_acting"),
+        ({"setpoint_weight_p": 1.5}, ValueError, "setpoint_weight_p"),
+        ({"setpoint_weight_d": -0.1}, ValueError, "setpoint_weight_d"),
+        ({"setpoint_weight_d": math.nan}, ValueError, "setpoint_weight_d"),
     ],
 )
 def test_config_validation(kw: dict[str, object], exc: type[Exception], match: str) -> None:
@@ -445,6 +523,7 @@ def test_digest_pid_ii_first_lowers_pump_on_setpoint_step() -> None:
 finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False)
 gain = st.floats(min_value=-50.0, max_value=50.0, allow_nan=False)
 mode_st = st.sampled_from([MANUAL, AUTO, REMOTE])
+weight = st.one_of(st.sampled_from([0.0, 1.0]), st.floats(0.0, 1.0))
 scan = st.tuples(
     st.lists(finite, min_size=2, max_size=2),  # sp
     st.lists(finite, min_size=2, max_size=2),  # pv
@@ -477,6 +556,8 @@ def two_loop_pid(draw: st.DrawFn, d_filter: bool = True) -> Pid:
         pv_bad_scans=draw(st.integers(1, 4)),
         initial_mode=[draw(mode_st), draw(mode_st)],
         init_memory=draw(st.sampled_from(["zero", "first_error"])),
+        setpoint_weight_p=draw(st.lists(weight, min_size=2, max_size=2)),
+        setpoint_weight_d=draw(st.lists(weight, min_size=2, max_size=2)),
     )
     mats = [np.array(draw(st.lists(gain, min_size=4, max_size=4))).reshape(2, 2) for _ in range(3)]
     return Pid(cfg, PidGains(*mats))
@@ -567,6 +648,33 @@ def test_gain_change_is_bumpless_property(
     assert res.mv == pytest.approx(expected, rel=1e-9, abs=1e-9)
 
 
+@settings(max_examples=150, deadline=None)
+@given(
+    pid=two_loop_pid(),
+    history=st.lists(st.tuples(vec2, vec2), min_size=0, max_size=20),
+    new=st.lists(weight, min_size=4, max_size=4),
+)
+def test_setpoint_weight_change_is_bumpless_property(
+    pid: Pid, history: list[tuple[list[float], list[float]]], new: list[float]
+) -> None:
+    # Whatever ran before, changing b and c between two scans adds nothing by itself: with SP and
+    # PV where the memory (w(k-1), y(k-1)) has them, a block whose weights were just changed and
+    # its twin that kept the old ones make exactly the same move (a memory of weighted errors
+    # would differ by Kp (b_new - b_old) w).
+    for h_sp, h_pv in history:
+        pid.step(h_sp, h_pv)
+    twin = copy.deepcopy(pid)
+    for j in range(2):
+        pid.set_setpoint_weights(j, b=new[j], c=new[2 + j])
+    assert pid.setpoint_weights[0].tolist() == new[:2] and pid.setpoint_weights[1].tolist() == new[2:]
+    sp, pv = list(pid._w_mem), list(pid._y_mem)
+    res, ref = pid.step(sp, pv), twin.step(sp, pv)
+    if np.array_equal(res.working_sp, sp):  # (a setpoint ramp still under way moves w itself)
+        for name in ("mv", "p", "i", "d"):
+            np.testing.assert_array_equal(getattr(res, name), getattr(ref, name), err_msg=name)
+        assert np.all(res.p == 0.0)
+
+
 # --------------------------------------------------------------------------- single-loop fast path
 # A one-loop block computes on Python floats (the module docstring's "single-loop fast path");
 # setting ``_scalar = False`` makes it run the n-loop numpy path instead. The two must agree on
@@ -582,6 +690,7 @@ one_loop_action = st.one_of(
     st.tuples(st.just("remote"), finite),
     st.tuples(st.just("track"), finite),
     st.tuples(st.just("gains"), gain, gain, gain),
+    st.tuples(st.just("weights"), weight, weight),
 )
 
 
@@ -609,6 +718,8 @@ def one_loop_pair(draw: st.DrawFn, lows: st.SearchStrategy[float] | None = None)
         substitute=draw(st.sampled_from(["hold", "value"])),
         substitute_mv=draw(st.floats(lo, hi)),
         initial_mode=draw(mode_st),
+        setpoint_weight_p=draw(weight),
+        setpoint_weight_d=draw(weight),
     )
     gains = PidGains.diagonal([draw(gain)], [draw(gain)], [draw(gain)])
     fast, ref = Pid(cfg, gains), Pid(cfg, gains)
@@ -663,6 +774,9 @@ def test_scalar_fast_path_matches_numpy_path(entry: str, pair: tuple[Pid, Pid], 
         elif kind == "track":
             fast.track(0, action[1])
             ref.track(0, action[1])
+        elif kind == "weights":
+            fast.set_setpoint_weights(0, *action[1:])
+            ref.set_setpoint_weights(0, *action[1:])
         else:
             fast.set_gains(*([g] for g in action[1:]))
             ref.set_gains(*([g] for g in action[1:]))
@@ -677,6 +791,7 @@ def _reference_step_one(pid: Pid, sp: float, pv: float, pv_good: bool) -> PidLoo
     block's own state: the oracle that the written-out clamps of `Pid._step_one` change no bit."""
     lo, hi, du_max, sp_lo, sp_hi, sp_step, sign, alpha, ts, n_bad, subst_value, subst_mv = pid._one
     kp, ki, kd = pid._one_gains
+    b, c = pid._b[0], pid._c[0]
     good = pv_good and math.isfinite(pv)
     target = min(max(sp, sp_lo), sp_hi)
     if pid._started:
@@ -691,14 +806,16 @@ def _reference_step_one(pid: Pid, sp: float, pv: float, pv_good: bool) -> PidLoo
     if good:
         e = sign * (w - pv)
         if pid._needs_init[0]:
-            e_prev, d_prev = e, 0.0
+            w_mem, y_mem, d_prev = w, pv, 0.0
         else:
-            e_prev = pid._e_prev[0]
-        e_used, de = e, e - e_prev
-        d_new = alpha * d_prev + (1.0 - alpha) * de / ts
+            w_mem, y_mem = pid._w_mem[0], pid._y_mem[0]
+        e_used = e
+        de_p = sign * (b * w - pv) - sign * (b * w_mem - y_mem)
+        de_d = sign * (c * w - pv) - sign * (c * w_mem - y_mem)
+        d_new = alpha * d_prev + (1.0 - alpha) * de_d / ts
     else:
-        e, e_used, de, d_new = math.nan, 0.0, 0.0, d_prev
-    p, i, d = kp * de, ki * (ts * e_used), kd * (d_new - d_prev)
+        e, e_used, de_p, d_new = math.nan, 0.0, 0.0, d_prev
+    p, i, d = kp * de_p, ki * (ts * e_used), kd * (d_new - d_prev)
     u_prev = pid._u[0]
     mode = pid._modes[0]
     raw = u_prev + p + i + d if mode is AUTO else pid._remote[0] if mode is REMOTE else pid._manual[0]
@@ -711,7 +828,7 @@ def _reference_step_one(pid: Pid, sp: float, pv: float, pv_good: bool) -> PidLoo
     u = min(max(limited, lo), hi)
     pid._u[0] = u
     if good:
-        pid._e_prev[0] = e_used
+        pid._w_mem[0], pid._y_mem[0] = w, pv
     pid._d_prev[0] = d_new
     pid._needs_init[0] = not good
     return PidLoopStep(u, w, e, p, i, d, u != limited, limited != raw, good, substituted, mode)
@@ -753,11 +870,14 @@ def _replay_against_reference(fast: Pid, ref: Pid, actions: list[Any]) -> None:
         elif kind == "gains":
             fast.set_gains(*([g] for g in action[1:]))
             ref.set_gains(*([g] for g in action[1:]))
+        elif kind == "weights":
+            fast.set_setpoint_weights(0, *action[1:])
+            ref.set_setpoint_weights(0, *action[1:])
         else:
             verb = {"manual": Pid.set_manual_mv, "remote": Pid.set_remote_mv, "track": Pid.track}[kind]
             verb(fast, 0, action[1])
             verb(ref, 0, action[1])
-        for name in ("_u", "_w", "_e_prev", "_d_prev", "_manual", "_remote"):
+        for name in ("_u", "_w", "_w_mem", "_y_mem", "_d_prev", "_manual", "_remote", "_b", "_c"):
             assert [_bits(x) for x in getattr(fast, name)] == [_bits(x) for x in getattr(ref, name)], name
         assert fast._bad_count == ref._bad_count and fast._needs_init == ref._needs_init
 

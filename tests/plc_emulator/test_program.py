@@ -180,6 +180,30 @@ def test_velocity_form_increments_three_scans_by_hand() -> None:
     assert out.values["PLC.Status.ModelTime"] == 2.0
 
 
+@pytest.mark.parametrize(("c", "kick"), [(None, 0.0), (0.0, 0.0), (1.0, 1e-2 * 0.02 / 0.1)])
+def test_pid_setpoint_weights_come_from_the_config(c: float | None, kick: float) -> None:
+    # Single tank PID, Ts = 0.1 s, Kp 0.031, Ki 0.125, Kd 1e-2, pump at 0.05 (inside 0..0.2).
+    # Settled at SP = PV = 0.1 (three scans flush the zero memory), then SP 0.1 -> 0.12.
+    # The step's increment: Kp 0.02 (b = 1) + Ki Ts 0.02 + the D kick: Kd 0.02 / Ts = 2e-3 with
+    # c = 1 (D on the error), none with c = 0, the site default (derivative on the measurement).
+    loop: dict[str, Any] = {"gains": {"kp": 0.031, "ki": 0.125, "kd": 1e-2}, "setpoint_m": 0.1}
+    if c is not None:
+        loop["setpoint_weight_d"] = c
+    site = single_tank("pid", **loop)
+    data = site.model_dump(mode="json")
+    data["plant"]["pumps"][0]["initial_command"] = 0.05
+    rig = Rig(site_of(data))
+    lp = rig.plc.loop("LIC1")
+    assert lp.pid is not None
+    assert [w.tolist() for w in lp.pid.setpoint_weights] == [[1.0], [0.0 if c is None else c]]
+    for _ in range(3):
+        before = mv(rig.scan([0.1]), "LIC1")
+    assert 0.0 < before < 0.2
+    rig.plc.set_sp("LIC1", 0.12)
+    after = mv(rig.scan([0.1]), "LIC1")
+    assert after - before == pytest.approx(0.031 * 0.02 + 0.125 * 0.1 * 0.02 + kick, rel=1e-9)
+
+
 def test_rig_errors_are_in_centimetres() -> None:
     # Rig: Kp 100, Ki 1, Kd 10 in rpm per cm (digest 2.1), SP 0.40 m = 40 cm, u(-1) = 0.
     # k=0: PV 0.35 m: e = 5 cm:  P = 500, I = 5, D = 10 (5)           = 50   u0 = 555 rpm
