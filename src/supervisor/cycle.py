@@ -1,20 +1,26 @@
 """The supervisor's cycle: from one PLC snapshot to the actions the SCADA level takes.
 
-Each cycle (every ``cycle_scans`` PLC scans) the supervisor reads, in ONE Read, the PLC's scan
-counter, model time, every loop's SP, PV, MV, mode and applied gains, and every level the PLC
-reads; so errors and MVs belong to the same scan. Then, by mode:
+The supervisor sees every PLC scan's snapshot (through :class:`supervisor.port.SupervisorDriver`):
+in ONE Read, the PLC's scan counter, model time, every loop's SP, PV, MV, mode and applied gains,
+and every level the PLC reads; so errors and MVs belong to the same scan. Between samples it only
+tracks the MV the PLC applied (:meth:`SupervisorCore.track`); every ``supervisor.sample_time_s``
+(a whole number of PLC scans) it runs a cycle (:meth:`SupervisorCore.cycle`): the estimate is
+brought to the snapshot's scan with those MVs and corrected with its levels
+(:mod:`supervisor.timing`), then, by mode:
 
-- OFF: nothing is computed; only the heartbeat goes on.
-- ADVISORY: the MPC runs in the shadow from the measured state, with its previous input set to
-  the MV the PLC applied before this scan; the RLS learns; plans and estimates are published,
-  nothing is pushed.
+- OFF: the estimate is kept up to date; nothing is planned or pushed; the heartbeat goes on.
+- ADVISORY: the MPC runs in the shadow of the PLC's PID from x(k|k), with its previous input
+  the MV applied over the scan before this one; the RLS learns; plans and estimates are
+  published, nothing is pushed.
 - ADAPTIVE_PID: as ADVISORY, and every push period the adapter proposes a gain set that passes
   every guard; it is pushed through ``SetGains`` (digest 2.4 with its corrections).
 - MPC: the loops are put in REMOTE and the MPC's input, converted to each pump's unit, is
-  written to ``RemoteMV`` every cycle (the OPC UA MPC paper's architecture). When a loop leaves
-  REMOTE behind the supervisor's back (the PLC's watchdog fell back after a stall, an operator
-  took it), the supervisor sheds to ADVISORY and counts it (``sheds``): it never reports MPC
-  while it no longer drives the pumps.
+  written to ``RemoteMV`` every sample (the OPC UA MPC paper's architecture). The move reaches the
+  pumps at the next PLC scan, so the plan starts from the state the committed MV(k) leads to one
+  scan ahead, with u(-1) = MV(k) (the timing diagram is in :mod:`supervisor.timing`). When a loop
+  leaves REMOTE behind the supervisor's back (the PLC's watchdog fell back after a stall, an
+  operator took it), the supervisor sheds to ADVISORY and counts it (``sheds``): it never reports
+  MPC while it no longer drives the pumps.
 
 Bumpless switches: entering MPC first writes ``RemoteMV`` = the applied MV and only then the
 REMOTE mode, and the MPC starts from the applied input; leaving MPC puts the loops back in AUTO,
@@ -42,6 +48,7 @@ from plant_sim.linearize import equilibrium_flows, linearize, operating_point
 from plant_sim.models import TankNetwork, default_inputs
 from supervisor.adaptation import AdaptationConfig, GainBox, LoopModel, PidGainAdapter, PidGains
 from supervisor.mpc import MpcConfig, MpcController, MpcModel, MpcResult
+from supervisor.timing import ScanPredictor
 from tanklab.config import SiteConfig
 from tanklab.enums import LoopMode, MpcStatus, SupervisorMode
 
@@ -117,7 +124,7 @@ def build_mpc(site: SiteConfig) -> tuple[MpcController, TankNetwork]:
     net = TankNetwork.from_config(site.plant)
     u0 = default_inputs(net, site.plant)
     op = operating_point(net, site.plant, u0)
-    ts = spec.sample_time_s or site.plc.scan_period_s * site.supervisor.cycle_scans
+    ts = site.supervisor_sample_time_s
     lin = linearize(net, op.equilibrium_levels_m, op.flows_m3_s, u0, ts)
     tanks = site.tank_names
     n = len(tanks)
@@ -168,6 +175,10 @@ class SupervisorCore:
         self.loops = site.plc.loops
         self.loop_names = [lp.name for lp in self.loops]
         self.mpc, self.net = build_mpc(site)
+        self.scan_period_s = site.plc.scan_period_s
+        self.sample_scans = site.supervisor_sample_scans
+        # The estimate carried scan by scan with the MVs the PLC applied (supervisor.timing).
+        self.predictor = ScanPredictor(*self._scan_model(self.mpc.model.x_op, self.mpc.model.u_op))
         tanks = site.tank_names
         pumps = site.pump_names
         # Loop j drives pump self.loop_pump[j]; the MPC's inputs are all pumps in plant order.
@@ -181,6 +192,7 @@ class SupervisorCore:
         self.cycles = 0
         self.last: PlcSnapshot | None = None
         self.result: MpcResult | None = None
+        self.result_scan: int | None = None  # the PLC scan of the sample whose MPC step made it
         self.push_scan = -10
         self.pushes_refused = 0
         self.remote_since_scan: int | None = None  # MPC: first scan that shows the loops in REMOTE
@@ -190,6 +202,16 @@ class SupervisorCore:
         self.adapter: PidGainAdapter | None = self._build_adapter() if self._all_pid() else None
 
     # ---- construction -------------------------------------------------------------------
+
+    def _scan_model(
+        self, x_op: FloatArray, u_op: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The linear model over one PLC scan at (x_op, u_op), for the ScanPredictor."""
+        if self.sample_scans == 1:
+            m = self.mpc.model  # the MPC's own model is already the one-scan model
+            return m.A, m.B, x_op, u_op
+        lin = linearize(self.net, x_op, u_op, default_inputs(self.net, self.site.plant), self.scan_period_s)
+        return lin.A, lin.B, x_op, u_op
 
     def _all_pid(self) -> bool:
         return all(lp.block == "pid" and lp.gains is not None for lp in self.loops)
@@ -276,18 +298,46 @@ class SupervisorCore:
         """Loop MVs [pump unit] for pump flows [m^3/s]."""
         return np.array([self.site.plant.pumps[p].command_of(float(flows[p])) for p in self.loop_pump])
 
+    def track(self, snap: PlcSnapshot) -> None:
+        """A PLC scan between two samples: carry the estimate with the MV the PLC applied."""
+        self._advance(snap)
+        self.predictor.applied(self.flows_of(snap.mv))
+
     def cycle(self, snap: PlcSnapshot, r_preview: FloatArray | None = None) -> Actions:
-        """Run one cycle on a new PLC snapshot; return the actions to write and the values."""
+        """Run one sample on a new PLC snapshot; return the actions to write and the values.
+
+        The estimate is brought to the snapshot's scan with the MVs applied since the last one
+        and corrected with its levels (when they are good); then, by mode, the MPC plans
+        (supervisor.timing: from the look-ahead state in MPC mode, from the estimate in the
+        shadow modes) and the adapter learns and proposes.
+        """
         act = Actions()
-        prev = self.last
         self._shed_if_loops_left_remote(snap, act)
         self._switch_mode(snap, act)
         self.cycles += 1
-        if self.mode is not SupervisorMode.OFF:
-            self._compute(snap, prev, act, r_preview)
+        self._advance(snap)
+        u_before = self.predictor.u_m3_s  # applied over the scan before this snapshot's
+        measured = self._correct(snap)
+        self.predictor.applied(self.flows_of(snap.mv))
+        if self.mode is not SupervisorMode.OFF and measured:
+            self._compute(snap, u_before, act, r_preview)
         self.last = snap
         act.values.update(self.values())
         return act
+
+    def _advance(self, snap: PlcSnapshot) -> None:
+        if self.predictor.started:
+            self.predictor.advance_to(snap.scan)
+        else:
+            self.predictor.start(snap.scan, self.flows_of(snap.mv))
+
+    def _correct(self, snap: PlcSnapshot) -> bool:
+        """Fold the snapshot's levels into the estimate; False (nothing changed) when any is bad."""
+        if not bool(np.all(snap.good)) or not np.all(np.isfinite(snap.levels_m)):
+            return False  # no correction, no MPC step on bad measurements: hold
+        p = self.predictor
+        p.corrected(*self.mpc.correct(snap.levels_m, p.x_m, p.eta_m3_s))
+        return True
 
     def _shed_if_loops_left_remote(self, snap: PlcSnapshot, act: Actions) -> None:
         """MPC drives the pumps only through loops in REMOTE. When a loop has left REMOTE since
@@ -335,21 +385,25 @@ class SupervisorCore:
         return r
 
     def _compute(
-        self, snap: PlcSnapshot, prev: PlcSnapshot | None, act: Actions, preview: FloatArray | None
+        self, snap: PlcSnapshot, u_before: FloatArray, act: Actions, preview: FloatArray | None
     ) -> None:
-        if not bool(np.all(snap.good)) or not np.all(np.isfinite(snap.levels_m)):
-            return  # no MPC step on bad measurements: hold (the PLC keeps its last RemoteMV)
         direct = self.mode is SupervisorMode.MPC
-        # Shadow: the MPC's previous input is the MV applied before this scan; direct: the MV now.
-        # Snapshot k carries MV(k) = MV(k-1) + psi(k)' theta exactly (psi from snapshots k, k-1,
-        # k-2), so u_MPC(k) - MV(k-1) regressed on psi(k) is the right pairing
-        # (tests/supervisor/test_closed_loop.py checks it on PLC-produced snapshots).
-        mv_prev = snap.mv if direct or prev is None or prev.scan != snap.scan - 1 else prev.mv
         r = self._reference(snap) if preview is None else preview
         if self.spec.mpc.relinearize:
             self._relinearize(r if r.ndim == 1 else r[0])
-        res = self.mpc.step(snap.levels_m, r, self.flows_of(mv_prev))
+        p = self.predictor
+        if direct:
+            # The move reaches the pumps at the next scan; MV(k) is committed until then.
+            x0, u_prev = p.look_ahead(1), p.u_m3_s
+        else:
+            # Shadow of the PLC's PID, whose MV(k) acts at once: plan from x(k|k) with the input
+            # applied before this scan. Snapshot k carries MV(k) = MV(k-1) + psi(k)' theta exactly
+            # (psi from snapshots k, k-1, k-2), so u_MPC(k) - MV(k-1) regressed on psi(k) is the
+            # right pairing (tests/supervisor/test_closed_loop.py checks it on PLC snapshots).
+            x0, u_prev = p.x_m, u_before
+        res = self.mpc.plan(x0, r, u_prev, p.eta_m3_s)
         self.result = res
+        self.result_scan = snap.scan
         u_cmd = self.commands_of(res.u)
         if direct:
             for j, name in enumerate(self.loop_names):
@@ -393,6 +447,7 @@ class SupervisorCore:
             return  # no equilibrium for this reference (e.g. above what the pumps can hold): keep
         lin = linearize(self.net, eq, flows, u0, self.mpc.model.ts_s)
         self.mpc.update_model(lin.A, lin.B, x_op=eq, u_op=flows)
+        self.predictor.set_model(*self._scan_model(eq, flows))
         self._last_r = np.array(r, dtype=float)
 
     # ---- publishing ---------------------------------------------------------------------
@@ -425,3 +480,4 @@ class SupervisorCore:
                 v[f"{p}.Rejected"] = d.rejected_pushes + self.pushes_refused
                 v[f"{p}.LastReason"] = reason
         return v
+

@@ -1,11 +1,11 @@
 """The supervisor's link to the PLC: one Read per cycle, ordered writes, SetGains calls.
 
-``snapshot`` reads, in one Read, the scan counter, the model time, every loop's SP, PV, MV,
-mode and applied gains, and every level the PLC reads with its quality, so that errors and MVs
-belong to the same scan (architecture: RLS data). ``apply`` writes what a cycle decided in a safe
-order: RemoteMV before Mode (entering REMOTE never applies a stale value), then SetGains, and the
-heartbeat last (in lock-step the heartbeat is the PLC's permission to scan again), in as few
-round trips as that order allows.
+The OPC UA transport of :class:`supervisor.port.PlcPort`. ``snapshot`` reads, in one Read, the
+scan counter, the model time, every loop's SP, PV, MV, mode and applied gains, and every level the
+PLC reads with its quality, so that errors and MVs belong to the same scan (architecture: RLS
+data). ``apply`` sends a :class:`supervisor.port.PlcRequest` in its order (RemoteMV before Mode,
+then SetGains, the heartbeat last: in lock-step it is the PLC's permission to scan again), in as
+few round trips as that order allows.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from typing import Any
 
 from asyncua import ua
 
-from supervisor.cycle import Actions, PlcSnapshot
+from supervisor.cycle import PlcSnapshot
+from supervisor.port import PlcRequest
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
 from tanklab.tags import plc_tags, tags_by_path
@@ -64,29 +65,22 @@ class PlcLink:
             values[path] = dv.Value.Value
         return PlcSnapshot.from_values(values, self.loops, self.tanks)
 
-    async def apply(self, actions: Actions, heartbeat: int | None = None) -> list[str]:
-        """Write a cycle's decisions, then ``heartbeat``; return the loops whose gain push the
-        PLC refused.
+    async def apply(self, request: PlcRequest) -> list[str]:
+        """Send a request in its order (:class:`supervisor.port.PlcRequest`); return the loops
+        whose gain push the PLC refused.
 
-        RemoteMV and Mode go in one Write (the PLC applies a Write's items in order); the
-        heartbeat joins that Write when no gains are pushed, else follows the SetGains calls in
-        its own: one round trip per cycle in the usual case instead of one per kind of value.
+        The first Write carries RemoteMV and Mode (the PLC applies a Write's items in order) and,
+        when no gains are pushed, the heartbeat: one round trip per cycle in the usual case.
 
         Raises
         ------
         LinkError
             When the PLC cannot be reached (nothing more is written).
         """
-        values: dict[str, object] = {f"PLC.{lp}.RemoteMV": mv for lp, mv in actions.remote_mv.items()}
-        values.update({f"PLC.{lp}.Mode": int(m) for lp, m in actions.modes.items()})
-        beat = {} if heartbeat is None else _heartbeat_value(heartbeat)
-        if not actions.gains:
-            values.update(beat)
-            beat = {}
-        if values:
-            await self._write(values)
+        if request.writes:
+            await self._write(dict(request.writes))
         refused = []
-        for lp, (kp, ki, kd) in actions.gains.items():
+        for lp, (kp, ki, kd) in request.gains:
             try:
                 await self.link.call(
                     f"PLC.{lp}.SetGains",
@@ -98,13 +92,9 @@ class PlcLink:
             except ua.UaStatusCodeError as e:
                 log.warning("PLC refused gains for %s: %s", lp, type(e).__name__)
                 refused.append(lp)
-        if beat:
-            await self._write(beat)
+        if request.trailing:
+            await self._write(dict(request.trailing))
         return refused
-
-    async def heartbeat(self, value: int) -> None:
-        """Write the heartbeat (UInt32, wraps)."""
-        await self._write(_heartbeat_value(value))
 
     async def _write(self, values: dict[str, object]) -> None:
         results = await self.link.write(values)
@@ -114,8 +104,3 @@ class PlcLink:
 
     async def close(self) -> None:
         await self.link.close()
-
-
-def _heartbeat_value(value: int) -> dict[str, object]:
-    """The heartbeat's Write item: ``PLC.Supervisor.Heartbeat`` is a UInt32, so the count wraps."""
-    return {"PLC.Supervisor.Heartbeat": value % 2**32}

@@ -1615,6 +1615,38 @@ class MpcController:
             d_ = _vector(disturbance, self._n_eta, "disturbance")
         return self._solve(x_ - self._model.x_op, d_, r_, u_prev_)
 
+    def correct(
+        self, y: ArrayLike, x_prior: ArrayLike, disturbance_prior: ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
+        """Fold a measurement into a prior predicted by the caller (the filter's corrector only).
+
+        For a caller that propagates the estimate itself, on a finer grid than the MPC's sample
+        (:class:`supervisor.timing.ScanPredictor`): the prior xi(k|k-1) = [x_prior; eta_prior] is
+        corrected with the filter's steady-state gain, xi(k|k) = xi(k|k-1) + Kf (y(k) - Ca xi(k|k-1)).
+
+        Parameters
+        ----------
+        y : array_like, shape (ny,)
+            All measured outputs [m, absolute]; the rows in ``estimator_outputs`` are used.
+        x_prior : array_like, shape (n,)
+            Predicted state x(k|k-1) [m, absolute].
+        disturbance_prior : array_like, shape (n_eta,)
+            Predicted disturbance eta(k|k-1).
+
+        Returns
+        -------
+        (x, disturbance) : x(k|k) [m, absolute], shape (n,), and eta(k|k), shape (n_eta,).
+        """
+        y_ = _vector(y, self._model.n_measured, "y")
+        x_ = _vector(x_prior, self._n, "x_prior")
+        d_ = _vector(disturbance_prior, self._n_eta, "disturbance_prior")
+        y_dev = y_ - self._y_op
+        if self._est_subset:
+            y_dev = y_dev[self._est_rows]
+        self._estimator.reset(x_ - self._model.x_op, d_)
+        est = self._estimator.correct(y_dev)
+        return self._model.x_op + est.x, np.array(est.disturbance)
+
     def _reference(self, r: ArrayLike) -> FloatArray:
         """r checked: (nz,) for a constant reference or (Np, nz) for a preview (both broadcast
         against (Np, nz) arrays; only read, so a float array comes back as it is)."""

@@ -1,10 +1,12 @@
 """The supervisor's cycle loop: paced by the PLC's scan counter, with its own staleness watchdog.
 
-The supervisor polls the PLC (one Read) several times per scan period of wall time and acts
-once per new scan: it acknowledges every scan with a new heartbeat, and every ``cycle_scans``
-scans runs a cycle (:class:`supervisor.cycle.SupervisorCore`) and writes its actions. Polling,
-not subscriptions: an asyncua subscription can go silent after a server freeze followed by a
-crash, while a Read either answers or fails.
+The supervisor polls the PLC (one Read) several times per scan period of wall time and hands
+every new scan's snapshot to :class:`supervisor.port.SupervisorDriver`, the same per-scan logic the
+co-simulation runs: it acknowledges every scan with a new heartbeat, tracks the applied MVs, and
+every ``supervisor.sample_time_s`` runs a cycle (:class:`supervisor.cycle.SupervisorCore`); the
+driver's request goes to the PLC through :class:`supervisor.link.PlcLink`. Polling, not
+subscriptions: an asyncua subscription can go silent after a server freeze followed by a crash,
+while a Read either answers or fails.
 
 Staleness watchdog: when ``PLC.Status.Scan`` has not advanced for ``plc_stale_s`` of model time
 (at least 1 s of wall time), the PLC counts as lost even if it still answers: the supervisor
@@ -16,9 +18,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from pathlib import Path
 
 from supervisor.cycle import SupervisorCore
 from supervisor.link import PlcLink
+from supervisor.port import SupervisorDriver
 from supervisor.server import SupervisorServer
 from tanklab.clock import Clock, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
@@ -42,14 +46,20 @@ async def run_supervisor(
     lockstep: bool = False,
     clock: Clock | None = None,
     ready: asyncio.Event | None = None,
+    trace: Path | None = None,
 ) -> SupervisorCore:
-    """Supervise the PLC until ``stop`` is set; return the core for inspection."""
+    """Supervise the PLC until ``stop`` is set; return the core for inspection.
+
+    ``trace``: a CSV file that gets one line per sample whose MPC step ran (see
+    :func:`trace_row`): how a lock-step run is compared with the co-simulation.
+    """
     if site.supervisor is None or site.plc is None:
         raise ValueError(f"site {site.name!r} has no supervisor section")
     if not speed > 0:
         raise ValueError(f"speed must be > 0, got {speed}")
     clock = clock or MonotonicClock()
     core = SupervisorCore(site)
+    driver = SupervisorDriver(core)
     server = SupervisorServer(site, core, host, port, security)
     ts_wall = site.plc.scan_period_s / speed
     link = PlcLink(
@@ -63,9 +73,7 @@ async def run_supervisor(
     await server.start()
     if ready is not None:
         ready.set()
-    heartbeat = 0
-    last_scan: int | None = None
-    last_cycle_scan: int | None = None
+    trace_file = trace.open("w", encoding="utf-8") if trace is not None else None
     last_progress = clock.now()
     connected = False
     try:
@@ -85,39 +93,46 @@ async def run_supervisor(
                 last_progress = now
                 core.push_refused()  # resynchronise the adapter with what the PLC applies
                 await server.publish({"Supervisor.PlcConnected": True})
-            if snap.scan == last_scan:
+            if snap.scan == driver.last_scan:
                 if now - last_progress > stale_wall_s:
                     log.warning("PLC scan counter stale for %.1f s: dropping the link", now - last_progress)
                     await link.close()
-                    last_scan = None
+                    driver.lost()
                     continue
                 await sleep_or_stop(clock, now + poll_s, stop)
                 continue
-            last_scan = snap.scan
             last_progress = now
+            sheds = core.sheds
+            request = driver.on_snapshot(snap)
+            if request is None:
+                continue
+            if core.sheds > sheds:
+                log.warning("MPC shed to ADVISORY: %s (re-engage with `tankctl mode mpc`)", core.shed_reason)
             try:
-                cycles_due = (
-                    last_cycle_scan is None or snap.scan - last_cycle_scan >= site.supervisor.cycle_scans
-                )
-                heartbeat += 1
-                if cycles_due:
-                    last_cycle_scan = snap.scan
-                    sheds = core.sheds
-                    actions = core.cycle(snap)
-                    if core.sheds > sheds:
-                        log.warning(
-                            "MPC shed to ADVISORY: %s (re-engage with `tankctl mode mpc`)", core.shed_reason
-                        )
-                    # The heartbeat goes with the actions (last): the PLC may scan on while this
-                    # tier publishes its own diagnostics.
-                    if await link.apply(actions, heartbeat):
-                        core.push_refused()
-                    await server.publish(actions.values)
-                else:
-                    await link.heartbeat(heartbeat)
+                # The heartbeat goes with the actions (last): the PLC may scan on while this
+                # tier publishes its own diagnostics.
+                driver.refused(await link.apply(request))
             except LinkError as e:
                 log.warning("%s", e)
+            if request.actions is not None:
+                await server.publish(request.actions.values)
+                if trace_file is not None and core.result_scan == snap.scan:
+                    trace_file.write(",".join(repr(x) for x in trace_row(snap.scan, snap.t_s, core)) + "\n")
     finally:
+        if trace_file is not None:
+            trace_file.close()
         await link.close()
         await server.stop()
     return core
+
+
+def trace_row(scan: int, t_s: float, core: SupervisorCore) -> list[float]:
+    """One supervisor trace line: the sample's PLC scan and model time [s], the supervisor mode,
+    then the MPC's planned inputs [m^3/s] (step-major, pumps inner, as ``PlannedMV``)."""
+    assert core.result is not None
+    return [
+        float(scan),
+        float(t_s),
+        float(int(core.mode)),
+        *(float(x) for x in core.result.planned_u.ravel()),
+    ]

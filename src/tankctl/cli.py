@@ -376,6 +376,9 @@ def supervisor(
     port: Annotated[int | None, typer.Option(help="TCP port (env TANKLAB_PORT; default 4842).")] = None,
     speed: SpeedOpt = None,
     lockstep: Annotated[bool, typer.Option(help="Acknowledge every PLC scan as fast as possible.")] = False,
+    trace: Annotated[
+        Path | None, typer.Option(help="CSV file getting one line per MPC sample (scan, time, plan).")
+    ] = None,
     home: HomeOpt = None,
     audit_dir: AuditOpt = None,
 ) -> None:
@@ -401,6 +404,7 @@ def supervisor(
             speed=spd,
             lockstep=lockstep,
             ready=ready,
+            trace=trace,
         )
 
     serve(

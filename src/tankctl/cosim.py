@@ -22,7 +22,9 @@ from numpy.typing import NDArray
 
 from plant_sim.plant import PlantSimulator
 from plc_emulator.program import GainStatus, PlcProgram, ScanInputs
+from plc_emulator.writes import apply_write
 from supervisor.cycle import PlcSnapshot, SupervisorCore
+from supervisor.port import PlcRequest, SupervisorDriver
 from tanklab.config import PidGainsSpec, SiteConfig
 from tanklab.enums import LoopMode, SupervisorMode
 
@@ -79,6 +81,48 @@ class _LastRows:
         return row
 
 
+class ProgramPort:
+    """The in-process PLC port (:class:`supervisor.port.PlcPort`) on a :class:`PlcProgram`.
+
+    A snapshot is made of the values the program published at its last scan, as the
+    supervisor's one Read sees them; a request's writes go through the same dispatch as the PLC
+    server's (:func:`plc_emulator.writes.apply_write`), its SetGains calls through
+    ``stage_gains``. A write the program refuses is counted (``refused_writes``) and the rest of
+    the request goes on, as a Bad status in a Write's results would.
+    """
+
+    def __init__(self, program: PlcProgram, site: SiteConfig) -> None:
+        self.program = program
+        self.loops = site.loop_names
+        self.tanks = site.tank_names
+        self.values: dict[str, Any] | None = None
+        self.refused_writes = 0
+
+    def snapshot(self) -> PlcSnapshot | None:
+        if self.values is None:
+            return None
+        return PlcSnapshot.from_values(self.values, self.loops, self.tanks)
+
+    def apply(self, request: PlcRequest) -> list[str]:
+        self._write(request.writes)
+        refused = [
+            lp
+            for lp, (kp, ki, kd) in request.gains
+            if self.program.stage_gains(lp, kp, ki, kd) is not GainStatus.STAGED
+        ]
+        self._write(request.trailing)
+        return refused
+
+    def _write(self, items: tuple[tuple[str, object], ...]) -> None:
+        for path, value in items:
+            try:
+                applied = apply_write(self.program, path, value)
+            except (ValueError, KeyError):
+                applied = False
+            if not applied:
+                self.refused_writes += 1
+
+
 class CoSimulation:
     """Plant + PLC on model time.
 
@@ -94,11 +138,11 @@ class CoSimulation:
         None: the PLC alone. Entering MPC at start goes through the same bumpless switch as at run
         time (the loops are put in REMOTE at the first cycle).
 
-    The supervisor runs after every ``cycle_scans``-th PLC scan on the PLC's published values (as
-    its one Read would see them), and its writes reach the PLC before the next scan, in the order
-    the real link writes them: RemoteMV, Mode, SetGains, then the heartbeat. Setting
-    ``supervisor_alive = False`` stops the supervisor (no cycles, no heartbeat), as a killed
-    process would.
+    The supervisor sees every PLC scan's published values (as its one Read would see them)
+    through the same :class:`supervisor.port.SupervisorDriver` as the supervisor process, and
+    its requests reach the PLC through :class:`ProgramPort` before the next scan, in the order the
+    OPC UA link sends them (:class:`supervisor.port.PlcRequest`). Setting ``supervisor_alive =
+    False`` stops the supervisor (no cycles, no heartbeat), as a killed process would.
     """
 
     def __init__(
@@ -130,14 +174,16 @@ class CoSimulation:
             flags.flags.writeable = False
         self.io_healthy = True
         self.supervisor: SupervisorCore | None = None
+        self.driver: SupervisorDriver | None = None
+        self.port = ProgramPort(self.plc, site)
         self.supervisor_alive = True
-        self.heartbeat = 0
         self.preview: Callable[[CoSimulation], FloatArray | None] | None = None
         if supervisor_mode is not None:
             if site.supervisor is None:
                 raise ValueError(f"site {site.name!r} has no supervisor section")
             self.supervisor = SupervisorCore(site)
             self.supervisor.request_mode(SupervisorMode[supervisor_mode])
+            self.driver = SupervisorDriver(self.supervisor)
 
     @property
     def t_s(self) -> float:
@@ -163,27 +209,24 @@ class CoSimulation:
         self._supervise(out.values)
         self.plant.advance(self.ts_s)
 
+    @property
+    def heartbeat(self) -> int:
+        """The supervisor's heartbeat count (0 without a supervisor)."""
+        return self.driver.heartbeat if self.driver is not None else 0
+
     def _supervise(self, values: dict[str, Any]) -> None:
-        sup = self.supervisor
+        sup, driver = self.supervisor, self.driver
         solve = float("nan")
-        if sup is not None and self.supervisor_alive and self.site.supervisor is not None:
-            if self.plc.scan_count % self.site.supervisor.cycle_scans == 0:
-                snap = PlcSnapshot.from_values(values, self.site.loop_names, self.site.tank_names)
-                preview = self.preview(self) if self.preview is not None else None
-                act = sup.cycle(snap, preview)
-                for name, mv in act.remote_mv.items():
-                    self.plc.set_remote_mv(name, mv)
-                for name, mode in act.modes.items():
-                    self.plc.set_mode(name, mode)
-                    if mode is LoopMode.REMOTE and name in act.remote_mv:
-                        self.plc.set_remote_mv(name, act.remote_mv[name])
-                for name, (kp, ki, kd) in act.gains.items():
-                    if self.plc.stage_gains(name, kp, ki, kd) is not GainStatus.STAGED:
-                        sup.push_refused()
-                if sup.result is not None and sup.cycles > 0:
+        if sup is not None and driver is not None and self.supervisor_alive:
+            self.port.values = values
+            snap = self.port.snapshot()
+            assert snap is not None
+            preview = self.preview
+            request = driver.on_snapshot(snap, (lambda: preview(self)) if preview is not None else None)
+            if request is not None:
+                driver.refused(self.port.apply(request))
+                if driver.sampled and sup.result is not None:
                     solve = sup.result.solve_time_s
-            self.heartbeat += 1
-            self.plc.heartbeat(self.heartbeat)
         self.trace.mpc_solve_s.append(solve)
 
     def _record(self, commands: FloatArray, readings: FloatArray) -> None:

@@ -476,9 +476,6 @@ class MpcSpec(Model):
     """Offset-free constrained MPC (digest 2.5); weights in SI units."""
 
     horizon: int = Field(40, ge=1, le=1000, description="Prediction and control horizon Np [samples].")
-    sample_time_s: PositiveFloat | None = Field(
-        None, description="MPC sample time [s]; default: the PLC scan period."
-    )
     controlled: list[str] = Field(description="Tanks whose levels are controlled (z), e.g. [T1, T2].")
     qz: list[NonNegFloat] = Field(description="Output weights, one per controlled level [1/m^2].")
     s: list[NonNegFloat] = Field(description="Move weights, one per pump [1/(m^3/s)^2].")
@@ -530,7 +527,13 @@ class SupervisorConfig(Model):
     """The SCADA level: MPC, adaptation and their cadence."""
 
     mode: Literal["OFF", "ADVISORY", "ADAPTIVE_PID", "MPC"] = Field("ADVISORY", description="Mode at start.")
-    cycle_scans: int = Field(1, ge=1, description="Run every N PLC scans.")
+    sample_time_s: PositiveFloat | None = Field(
+        None,
+        description=(
+            "Supervisor (and MPC) sample time [s], a whole multiple of the PLC scan period; the MPC "
+            "discretises its model at it; default: the PLC scan period."
+        ),
+    )
     mpc: MpcSpec = Field(description="The MPC.")
     adaptation: AdaptationSpec = Field(default_factory=AdaptationSpec, description="Gain adaptation.")
     plc_stale_s: PositiveFloat = Field(
@@ -623,6 +626,14 @@ class SiteConfig(Model):
                 raise ValueError("supervisor.mpc.s needs one weight per pump")
             if mpc.r is not None and len(mpc.r) != len(self.plant.pumps):
                 raise ValueError("supervisor.mpc.r needs one weight per pump")
+            ts = self.supervisor.sample_time_s
+            if ts is not None:
+                ratio = ts / self.plc.scan_period_s
+                if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+                    raise ValueError(
+                        f"supervisor.sample_time_s {ts:g} s must be a whole multiple of plc.scan_period_s "
+                        f"{self.plc.scan_period_s:g} s"
+                    )
         return self
 
     def _check_interlock(self, il: InterlockSpec) -> None:
@@ -665,6 +676,21 @@ class SiteConfig(Model):
     def loop_names(self) -> list[str]:
         """Loop tags in order (empty without a PLC program)."""
         return [lp.name for lp in self.plc.loops] if self.plc else []
+
+    @property
+    def supervisor_sample_scans(self) -> int:
+        """PLC scans per supervisor sample (``supervisor.sample_time_s / plc.scan_period_s``, >= 1)."""
+        if self.supervisor is None or self.plc is None:
+            raise ValueError(f"site {self.name!r} has no supervisor section")
+        ts = self.supervisor.sample_time_s
+        return 1 if ts is None else max(1, round(ts / self.plc.scan_period_s))
+
+    @property
+    def supervisor_sample_time_s(self) -> float:
+        """The supervisor's (and MPC's) sample time [s]: a whole number of PLC scans."""
+        assert self.plc is not None
+        return self.supervisor_sample_scans * self.plc.scan_period_s
+
 
 
 # --------------------------------------------------------------------------------------------

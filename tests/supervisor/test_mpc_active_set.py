@@ -14,7 +14,7 @@ from dataclasses import replace
 import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
-from hypothesis import given, settings
+from hypothesis import given, reject, settings
 from hypothesis import strategies as st
 
 from supervisor.mpc import KKT_TOL, MpcConfig, MpcController, MpcModel, _ActiveSetQp, _LuFactor, _SchurFactor
@@ -191,7 +191,12 @@ def test_corrections_that_certify_find_the_optimum(seed: int) -> None:
     Ad = A.toarray()
     objective = cp.Minimize(0.5 * cp.quad_form(v, cp.psd_wrap(Pd)) + q @ v)
     prob = cp.Problem(objective, [Ad @ v >= lo, Ad @ v <= up])
-    prob.solve(solver="CLARABEL", tol_feas=1e-12, tol_gap_abs=1e-12, tol_gap_rel=1e-12)
+    try:
+        prob.solve(solver="CLARABEL", tol_feas=1e-12, tol_gap_abs=1e-12, tol_gap_rel=1e-12)
+    except cp.error.SolverError:
+        # the reference itself gives up at these tolerances on a few random QPs (seed 136): no
+        # oracle for this example, so it is not one (Hypothesis draws another)
+        reject()
     assert prob.status == "optimal"
     if fix.solution is None:
         return  # no claim: the controller then runs OSQP

@@ -58,6 +58,14 @@ def _energies() -> dict:
             "(top level)",
             "plus one scan at full pump flow (0.00779 m) reaches height_max_m 0.62 m",
         ),
+        # The supervisor samples on the PLC's scan grid: 2.5 s is not a whole number of 1 s scans.
+        (
+            lambda d: d["supervisor"].update(sample_time_s=2.5),
+            "(top level)",
+            "supervisor.sample_time_s 2.5 s must be a whole multiple of plc.scan_period_s 1 s",
+        ),
+        # The cadence is a time now, not a count of scans.
+        (lambda d: d["supervisor"].update(cycle_scans=2), "supervisor.cycle_scans", "xtra"),
     ],
 )
 def test_bad_config_is_one_line_naming_file_field_and_rule(
@@ -138,3 +146,14 @@ def test_every_field_is_documented() -> None:
     ]
     missing += [f"SiteConfig.{f}" for f, s in schema["properties"].items() if not s.get("description")]
     assert missing == []
+
+
+def test_supervisor_sample_time_is_a_whole_number_of_plc_scans() -> None:
+    data = _energies()
+    data["plc"]["scan_period_s"] = 0.5
+    data["supervisor"]["sample_time_s"] = 2.5
+    site = site_from_mapping(data)
+    assert site.supervisor_sample_scans == 5
+    assert site.supervisor_sample_time_s == 2.5
+    del data["supervisor"]["sample_time_s"]
+    assert site_from_mapping(data).supervisor_sample_scans == 1  # default: every scan
