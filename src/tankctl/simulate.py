@@ -1015,18 +1015,28 @@ def regenerate_docs(doc: str | Path, *, root: str | Path = ".") -> list[str]:
 
     Blocks: ``<!-- generated:scenario FILE -->`` (markdown_report of the scenario, and its figure
     written to ``docs/figures/<name>.png``), ``<!-- generated:tf imc -->`` (the transfer-function
-    experiment), ``<!-- generated:mrac-sweep FILE -->`` (the gamma sweep), each closed by
-    ``<!-- /generated -->``. Paths are relative to ``root``.
+    experiment), ``<!-- generated:mrac-sweep FILE -->`` (the gamma sweep),
+    ``<!-- generated:kortela-notes FILE -->`` (the OPC UA MPC paper's findings as sentences) and
+    ``<!-- generated:ratios all -->`` (the settling ratios of every scenario run above it), each
+    closed by ``<!-- /generated -->``. Paths are relative to ``root``; a scenario runs once.
     """
+    from tankctl.doc_notes import kortela_notes, ratio_notes
+
     base = Path(root)
     doc_path = base / doc
     text = doc_path.read_text(encoding="utf-8")
     done: list[str] = []
+    runs: dict[str, ScenarioResult] = {}
+
+    def run(arg: str) -> ScenarioResult:
+        if arg not in runs:
+            runs[arg] = run_scenario(base / arg)
+        return runs[arg]
 
     def render(m: re.Match[str]) -> str:
         kind, arg = m["kind"], m["arg"]
         if kind == "scenario":
-            result = run_scenario(base / arg)
+            result = run(arg)
             fig = doc_path.parent / "figures" / f"{result.scenario.name}.png"
             from tankctl.plots import plot_scenario
 
@@ -1036,6 +1046,10 @@ def regenerate_docs(doc: str | Path, *, root: str | Path = ".") -> list[str]:
             body = tf_markdown()
         elif kind == "mrac-sweep":
             body = mrac_sweep_markdown(base / arg)
+        elif kind == "kortela-notes":
+            body = kortela_notes(run(arg))
+        elif kind == "ratios":
+            body = ratio_notes({r.scenario.name: r for r in runs.values()})
         else:
             raise ValueError(f"{doc}: unknown generated block {kind!r}")
         done.append(f"{kind} {arg}")
