@@ -7,11 +7,13 @@ A scan (period Ts of model time) does, in order:
    period counted from the first scan). On timeout ``Alive`` goes false; loops on SUPERVISOR
    gains go to FALLBACK gains (the fixed ones or the last accepted ones), loops in REMOTE shed
    to AUTO at their current setpoint, both bumpless (the velocity form continues from the
-   applied MV; NL-PI and MRAC re-initialise from it), and gains staged since the last scan are
-   dropped. Supervisor gains are accepted again only after the heartbeat has been good for
-   ``good_scans_to_accept`` scans.
-2. **Boundary**: gains staged by ``SetGains`` since the last scan take effect now, all three at
-   once, so no scan runs with half-applied gains.
+   applied MV; NL-PI and MRAC re-initialise from it), and the supervisor's gains staged since
+   the last scan are dropped. ENGINEER gains, and an engineer's or operator's staged request
+   (SetGains, ResetGains), are never touched by the watchdog. Supervisor gains are accepted
+   again only after the heartbeat has been good for ``good_scans_to_accept`` scans.
+2. **Boundary**: gains staged since the last scan (``SetGains``, ``ResetGains``) take effect
+   now, all three at once, so no scan runs with half-applied gains, and the loop's
+   ``GainSource`` changes with them.
 3. **Read inputs**: the level transmitters' readings and their quality. A reading is bad when
    the field link failed (``io_healthy`` false), the link flagged it, it is not finite, outside
    the transmitter range, or frozen (``pv_frozen_scans`` identical readings in a row, when
@@ -32,6 +34,17 @@ A scan (period Ts of model time) does, in order:
 6. **Write outputs**: one command per pump, in the pump's own unit, always inside the pump's
    command range.
 7. **Publish**: every PLC node's value the program owns, keyed by tag path (``values()``).
+
+Gain sources (``tanklab.enums.GainSource``, one per PID loop):
+
+- FIXED: the configured gains (at start, after ``ResetGains``), or gains left in place by
+  ``ReleaseGains`` until the supervisor pushes again.
+- SUPERVISOR: the supervisor's last accepted ``SetGains``.
+- FALLBACK: the supervisor was lost; the fixed or its last accepted gains (``watchdog.fallback``).
+- ENGINEER: an engineer's own ``SetGains`` (whatever the supervisor's state). While a loop is
+  ENGINEER the supervisor's ``SetGains`` on it is refused (INVALID_STATE) and the watchdog
+  leaves it alone, until ``ReleaseGains`` (the gains stay, source FIXED) or ``ResetGains`` (the
+  fixed gains at the next boundary, source FIXED) hands it back.
 
 Errors are SP - PV in the loop's ``error_unit``: the rig's gains assume centimetres, so SP and PV
 are scaled by 100 before the PID block sees them (the PID's setpoint limits and ramp scale with
@@ -130,7 +143,9 @@ class _Loop:
     applied: PidGainsSpec | None = None
     last_accepted: PidGainsSpec | None = None
     staged: PidGainsSpec | None = None
+    staged_source: GainSource | None = None  # the GainSource the staged set brings at the boundary
     source: GainSource = GainSource.FIXED
+    mode_changed_scan: int = -1  # scan_count when the mode last changed (pending until that scan ran)
     mv: float = 0.0
     pv_m: float = math.nan  # PV used this scan [m]; NaN while bad
     pv_bad: bool = False
@@ -184,9 +199,10 @@ class PlcProgram:
     """The PLC program of a site, scanned by :meth:`scan`.
 
     Operator and supervisor requests (``set_sp``, ``set_mode``, ``set_manual_mv``,
-    ``set_remote_mv``, ``heartbeat``, ``stage_gains``, ``reset_interlocks``) take effect at the
-    next scan; the value checks of the contract (type, finiteness, EURange) are the OPC UA layer's
-    job, the checks that need the program's state are made here (``ValueError`` on refusal).
+    ``set_remote_mv``, ``heartbeat``, ``stage_gains``, ``reset_gains``, ``release_gains``,
+    ``reset_interlocks``) take effect at the next scan; the value checks of the contract (type,
+    finiteness, EURange) are the OPC UA layer's job, the checks that need the program's state are
+    made here (``ValueError`` on refusal; the gain requests answer a :class:`GainStatus`).
 
     Parameters
     ----------
@@ -489,6 +505,7 @@ class PlcProgram:
         mode = LoopMode(mode)
         if mode is lp.mode:
             return
+        lp.mode_changed_scan = self.scan_count
         if lp.pid is not None and lp.pid_index is not None:
             lp.pid.set_mode(lp.pid_index, mode)
             if mode is LoopMode.REMOTE:
@@ -542,13 +559,32 @@ class PlcProgram:
         w = self.watchdog
         return w.alive and w.good_scans >= w.good_scans_needed
 
-    def stage_gains(self, name: str, kp: float, ki: float, kd: float) -> GainStatus:
+    def stage_gains(
+        self, name: str, kp: float, ki: float, kd: float, source: GainSource = GainSource.SUPERVISOR
+    ) -> GainStatus:
         """Validate (Kp, Ki, Kd) and stage them for the next scan boundary; all or nothing.
 
+        Parameters
+        ----------
+        name : the loop (LIC1, ...).
+        kp, ki, kd : the gains, in the loop's error unit.
+        source : who asks: SUPERVISOR (the supervisor's identity) or ENGINEER (an engineer's own
+            call); the applied gains carry it as their GainSource from the boundary on.
+
         Order of the checks: a block without PID gains answers INVALID_STATE; a non-finite value
-        or one outside the loop's ``gain_box`` (when configured) OUT_OF_RANGE; a supervisor that
-        is not trusted yet INVALID_STATE. A refused call changes nothing.
+        or one outside the loop's ``gain_box`` (when configured) OUT_OF_RANGE; then, for the
+        supervisor only: a loop held by an engineer (GainSource ENGINEER, or an engineer's
+        SetGains or a ResetGains staged) INVALID_STATE, a supervisor that is not trusted yet
+        INVALID_STATE. An engineer's call works whatever the supervisor's state. A refused call
+        changes nothing.
+
+        Raises
+        ------
+        ValueError
+            ``source`` is neither SUPERVISOR nor ENGINEER (a programming error).
         """
+        if source not in (GainSource.SUPERVISOR, GainSource.ENGINEER):
+            raise ValueError(f"SetGains is labelled SUPERVISOR or ENGINEER, not {source!r}")
         lp = self.loop(name)
         if lp.spec.block != "pid":
             return GainStatus.INVALID_STATE
@@ -561,15 +597,64 @@ class PlcProgram:
         box = lp.spec.gain_box
         if box is not None and not box.contains(*values):
             return GainStatus.OUT_OF_RANGE
-        if not self.supervisor_trusted:
+        if source is GainSource.SUPERVISOR and (self.engineer_holds(name) or not self.supervisor_trusted):
             return GainStatus.INVALID_STATE
         lp.staged = PidGainsSpec(kp=values[0], ki=values[1], kd=values[2])
+        lp.staged_source = source
+        return GainStatus.STAGED
+
+    def engineer_holds(self, name: str) -> bool:
+        """Whether the supervisor is kept off a loop's gains: its GainSource is ENGINEER, or an
+        engineer's SetGains or a ResetGains waits for the next boundary."""
+        lp = self.loop(name)
+        return lp.source is GainSource.ENGINEER or lp.staged_source in (GainSource.ENGINEER, GainSource.FIXED)
+
+    def mode_change_pending(self, name: str) -> bool:
+        """Whether a loop's mode changed since the last scan (the new mode has not run yet)."""
+        return self.loop(name).mode_changed_scan == self.scan_count
+
+    def reset_gains(self, name: str) -> GainStatus:
+        """Return a PID loop to its configured (FIXED) gains at the next scan boundary.
+
+        Staged like ``stage_gains`` (the velocity form makes the change bumpless: the scan after
+        the boundary moves the MV by the fixed gains' increment only); the loop's GainSource
+        becomes FIXED there, which also releases an engineer's hold. Until then the supervisor's
+        SetGains on the loop is refused.
+
+        Returns INVALID_STATE for a block without PID gains and while a mode change of the loop
+        is pending (written since the last scan: the mode and the gains would change on the same
+        scan; retry after it); else STAGED. A refused call changes nothing.
+        """
+        lp = self.loop(name)
+        if lp.spec.block != "pid" or lp.fixed is None or self.mode_change_pending(name):
+            return GainStatus.INVALID_STATE
+        lp.staged = lp.fixed
+        lp.staged_source = GainSource.FIXED
+        return GainStatus.STAGED
+
+    def release_gains(self, name: str) -> GainStatus:
+        """Hand a loop held by an engineer back to adaptation, now.
+
+        The applied gains stay; GainSource ENGINEER becomes FIXED (what it would be without the
+        engineer: no tier changes these gains until the supervisor pushes again), and an
+        engineer's SetGains still staged is dropped (the release is the later instruction). A
+        loop not held is left as it is (STAGED: done). INVALID_STATE for a block without PID gains.
+        """
+        lp = self.loop(name)
+        if lp.spec.block != "pid":
+            return GainStatus.INVALID_STATE
+        if lp.staged_source is GainSource.ENGINEER:
+            lp.staged = None
+            lp.staged_source = None
+        if lp.source is GainSource.ENGINEER:
+            lp.source = GainSource.FIXED
         return GainStatus.STAGED
 
     # ---- retentive memory (warm restart) -------------------------------------------------
 
     def retained(self) -> dict[str, Any]:
-        """The retentive data of a warm restart: per loop SP, mode, applied gains and their source.
+        """The retentive data of a warm restart: per loop SP, mode, applied gains and their source
+        (ENGINEER included: an engineer's hold survives a restart).
 
         Latched interlocks are retained too: a trip survives a restart until an operator resets it.
         """
@@ -592,7 +677,8 @@ class PlcProgram:
         Every value is checked as if it were written now (setpoint range, gain box, MV range);
         an entry that fails keeps the cold-start value and is reported, never half-applied.
         Gains from the supervisor come back as SUPERVISOR; the watchdog turns them into FALLBACK
-        if the supervisor does not return within its timeout.
+        if the supervisor does not return within its timeout. An engineer's gains come back as
+        ENGINEER, still held (the supervisor stays off them until a release or a reset).
         """
         skipped: list[str] = []
         for name, entry in dict(data.get("loops", {})).items():
@@ -612,11 +698,14 @@ class PlcProgram:
                     finite = all(math.isfinite(v) for v in (kp, ki, kd))
                     if not finite or (box is not None and not box.contains(kp, ki, kd)):
                         raise ValueError("retained gains outside the gain box")
+                    source = GainSource[str(entry["source"])]
                     lp.applied = PidGainsSpec(kp=kp, ki=ki, kd=kd)
-                    lp.last_accepted = lp.applied
-                    lp.source = GainSource[str(entry["source"])]
+                    if source is not GainSource.ENGINEER:  # last_accepted: the supervisor's gains
+                        lp.last_accepted = lp.applied
+                    lp.source = source
                 # Mode before the manual value: entering MANUAL tracks the applied MV.
                 self.set_mode(name, LoopMode[str(entry["mode"])])
+                lp.mode_changed_scan = -1  # a restored mode is not a change in progress
                 self.set_manual_mv(name, float(entry["manual_mv"]))
             except (KeyError, ValueError, TypeError) as e:
                 skipped.append(f"{name}: {e}")
@@ -659,8 +748,7 @@ class PlcProgram:
         self.t_s = float(inputs.t_s)
         if self._run_watchdog():
             self._fall_back()
-        else:
-            self._apply_staged_gains()
+        self._apply_staged_gains()
         self._read_inputs(levels.tolist(), delivered.tolist(), bool(inputs.io_healthy))
         self._execute_blocks()
         self._write_outputs(self._apply_interlocks())
@@ -678,10 +766,13 @@ class PlcProgram:
         changed = False
         for lp in self.loops:
             if lp.staged is not None:
+                source = GainSource.SUPERVISOR if lp.staged_source is None else lp.staged_source
                 lp.applied = lp.staged
-                lp.last_accepted = lp.staged
+                if source is GainSource.SUPERVISOR:
+                    lp.last_accepted = lp.staged
                 lp.staged = None
-                lp.source = GainSource.SUPERVISOR
+                lp.staged_source = None
+                lp.source = source
                 changed = True
         if changed:
             self._set_pid_gains()
@@ -708,15 +799,17 @@ class PlcProgram:
         return expired
 
     def _fall_back(self) -> None:
-        """Supervisor lost: staged gains dropped, supervisor gains -> FALLBACK, REMOTE -> AUTO.
+        """Supervisor lost: the supervisor's staged gains dropped, supervisor gains -> FALLBACK,
+        REMOTE -> AUTO (ENGINEER gains and an engineer's or a reset's staged set stay).
 
         Runs every scan while the supervisor is away (the co-simulation without one: always), so
         each loop is only read unless it has something to undo.
         """
         changed = False
         for lp in self.loops:
-            if lp.staged is not None:
+            if lp.staged is not None and lp.staged_source is GainSource.SUPERVISOR:
                 lp.staged = None
+                lp.staged_source = None
             if lp.source is GainSource.SUPERVISOR:
                 lp.applied = lp.fixed if self.fallback == "fixed" else lp.last_accepted
                 lp.source = GainSource.FALLBACK

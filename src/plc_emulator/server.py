@@ -5,8 +5,15 @@ contract's checks (:class:`tanklab.ua.WriteGuard`: type, finiteness, EURange, en
 the program's own (a refused write answers a Bad status and the old value stays).
 ``LIC{j}.SetGains(Kp, Ki, Kd)`` validates all three and stages them for the next scan
 boundary: BadOutOfRange (not finite or outside the gain box), BadTypeMismatch (wrong argument
-types, checked by the adapter), BadInvalidState (a block without PID gains, or a supervisor that
-is not trusted yet). ``Interlock.Reset()`` resets the latched trips whose level is low enough.
+types, checked by the adapter), BadInvalidState (a block without PID gains; for the supervisor's
+identity also a supervisor that is not trusted yet, or a loop an engineer holds). Who called
+decides the label: the supervisor's identity stages SUPERVISOR gains, an engineer's session
+ENGINEER gains (the session's user comes from :data:`tanklab.ua.CURRENT_USER`, set for the
+request being served). ``LIC{j}.ResetGains()`` stages the configured gains (source FIXED,
+releasing an engineer's hold; BadInvalidState while a mode change is pending or for a block
+without PID gains); ``LIC{j}.ReleaseGains()`` hands an ENGINEER loop back (source FIXED, gains
+kept). Role checks and the audit record of every call are the method adapter's
+(:mod:`tanklab.ua`). ``Interlock.Reset()`` resets the latched trips whose level is low enough.
 """
 
 from __future__ import annotations
@@ -20,8 +27,9 @@ from asyncua import ua
 from plc_emulator.program import GainStatus, PlcProgram
 from plc_emulator.writes import HEARTBEAT_PATH, apply_write
 from tanklab.config import SiteConfig
-from tanklab.tags import Tag, plc_tags, tags_by_path
-from tanklab.ua import MethodHandler, Publisher
+from tanklab.enums import GainSource
+from tanklab.tags import Role, Tag, plc_tags, tags_by_path
+from tanklab.ua import CURRENT_USER, MethodHandler, Publisher, TankUser
 from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
@@ -54,6 +62,8 @@ class PlcServer:
         methods: dict[str, MethodHandler] = {"PLC.Interlock.Reset": self._reset}
         for lp in self.program.loops:
             methods[f"PLC.{lp.spec.name}.SetGains"] = self._set_gains_for(lp.spec.name)
+            methods[f"PLC.{lp.spec.name}.ResetGains"] = self._reset_gains_for(lp.spec.name)
+            methods[f"PLC.{lp.spec.name}.ReleaseGains"] = self._release_gains_for(lp.spec.name)
         self.tier = await start_tier_server(
             "plc",
             url=self.url,
@@ -97,11 +107,32 @@ class PlcServer:
 
     def _set_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
         async def set_gains(kp: float, ki: float, kd: float) -> list[ua.Variant] | ua.StatusCode:
-            status = self.program.stage_gains(loop, kp, ki, kd)
-            log.info("PLC.%s.SetGains(%g, %g, %g): %s", loop, kp, ki, kd, status.value)
+            user = CURRENT_USER.get()
+            role = user.tank_role if isinstance(user, TankUser) else None
+            if role is None:  # the adapter's role check refuses these first
+                return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+            source = GainSource.SUPERVISOR if role is Role.SUPERVISOR else GainSource.ENGINEER
+            status = self.program.stage_gains(loop, kp, ki, kd, source)
+            log.info("PLC.%s.SetGains(%g, %g, %g) as %s: %s", loop, kp, ki, kd, source.name, status.value)
             return ua.StatusCode(_STATUS[status])
 
         return set_gains
+
+    def _reset_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
+        async def reset_gains() -> list[ua.Variant] | ua.StatusCode:
+            status = self.program.reset_gains(loop)
+            log.info("PLC.%s.ResetGains: %s", loop, status.value)
+            return ua.StatusCode(_STATUS[status])
+
+        return reset_gains
+
+    def _release_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
+        async def release_gains() -> list[ua.Variant] | ua.StatusCode:
+            status = self.program.release_gains(loop)
+            log.info("PLC.%s.ReleaseGains: %s", loop, status.value)
+            return ua.StatusCode(_STATUS[status])
+
+        return release_gains
 
     async def _reset(self) -> list[ua.Variant] | ua.StatusCode:
         reset = self.program.reset_interlocks()

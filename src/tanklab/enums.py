@@ -24,11 +24,20 @@ class LoopMode(IntEnum):
 
 
 class GainSource(IntEnum):
-    """Where the gains a PID loop applies came from (``PLC.LIC{j}.GainSource``)."""
+    """Where the gains a PID loop applies came from (``PLC.LIC{j}.GainSource``).
+
+    FIXED: the configured gains (at start and after ``ResetGains``), or gains an engineer handed
+    back with ``ReleaseGains`` (kept until the supervisor pushes again).
+    SUPERVISOR: the supervisor's last accepted ``SetGains``.
+    FALLBACK: the supervisor was lost; the fixed or its last accepted gains.
+    ENGINEER: an engineer's own ``SetGains``; the supervisor's ``SetGains`` is refused on the loop
+    and the watchdog leaves it alone until ``ReleaseGains`` or ``ResetGains``.
+    """
 
     FIXED = 0
     SUPERVISOR = 1
     FALLBACK = 2
+    ENGINEER = 3
 
 
 class SupervisorMode(IntEnum):

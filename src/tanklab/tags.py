@@ -447,7 +447,9 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         b.var(
             f"{p}.GainSource",
             DataType.INT32,
-            "Where the applied gains came from.",
+            "Where the applied gains came from: FIXED (configured, or kept by ReleaseGains), SUPERVISOR, "
+            "FALLBACK (supervisor lost), ENGINEER (an engineer's SetGains; the supervisor's SetGains "
+            "is refused until ReleaseGains or ResetGains).",
             eu_range=_enum_range(GainSource),
             enum=GainSource,
             initial=int(GainSource.FIXED),
@@ -459,13 +461,29 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
             f"{p}.SetGains",
             "Stage (Kp, Ki, Kd) for the next scan boundary. All finite and inside the gain box, or the "
             "whole call is refused (BadOutOfRange / BadTypeMismatch); BadInvalidState for a block "
-            "without PID gains or while the supervisor is not trusted.",
+            "without PID gains. An engineer's call is labelled ENGINEER and works whatever the "
+            "supervisor's state; the supervisor's is labelled SUPERVISOR and refused (BadInvalidState) "
+            "while the supervisor is not trusted or the loop is ENGINEER.",
             writers=frozenset({Role.ENGINEER, Role.SUPERVISOR}),
             inputs=(
                 Argument("Kp", DataType.DOUBLE, "Proportional gain."),
                 Argument("Ki", DataType.DOUBLE, "Integral gain [per s]."),
                 Argument("Kd", DataType.DOUBLE, "Derivative gain [s]."),
             ),
+        )
+        b.method(
+            f"{p}.ResetGains",
+            "Return the loop to its configured (FIXED) gains at the next scan boundary, bumplessly; "
+            "GainSource FIXED (releases an ENGINEER hold). BadInvalidState for a block without PID "
+            "gains or while a mode change of the loop is pending (written since the last scan).",
+            writers=OPERATOR_UP,
+        )
+        b.method(
+            f"{p}.ReleaseGains",
+            "Hand an ENGINEER loop back to adaptation: the applied gains stay, GainSource FIXED until "
+            "the supervisor pushes again. No change on a loop not held; BadInvalidState for a block "
+            "without PID gains.",
+            writers=OPERATOR_UP,
         )
     b.var("PLC.Status.Scan", DataType.UINT32, "Scan counter, +1 per completed scan.")
     b.var(

@@ -13,7 +13,7 @@ import pytest
 from asyncua import ua
 
 from helpers import ROOT, TierProcess, free_port, secure, wait_until
-from tanklab.ua import resolve
+from tanklab.ua import read_values, resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
 SPEED = "20"
@@ -103,7 +103,8 @@ async def test_bad_writes_are_refused_and_values_stay(stack) -> None:
             assert type(err.value).__name__ == expected, (path, value)
             if path not in ("PLC.LIC1.Kp", "PLC.LIC1.GainSource"):  # these the scan republishes
                 assert await n[path].read_value() == before, path
-        # SetGains: outside the box, not finite, wrong type, supervisor not trusted.
+        # SetGains: outside the box, not finite, wrong type (an engineer's call needs no trusted
+        # supervisor: test_engineer_gains_release_and_reset_through_the_real_server).
         idx = n["PLC.LIC1.SP"].nodeid.NamespaceIndex
         obj = client.get_node(ua.NodeId("PLC.LIC1", idx))
         method = ua.NodeId("PLC.LIC1.SetGains", idx)
@@ -114,7 +115,6 @@ async def test_bad_writes_are_refused_and_values_stay(stack) -> None:
             ((1e-3, 1e-5, float("inf")), "BadOutOfRange"),
             ((ua.Variant(1, ua.VariantType.Int32), 1e-5, 0.0), "BadTypeMismatch"),
             ((1e-3, 1e-5), "BadArgumentsMissing"),
-            ((1e-3, 1e-5, 0.0), "BadInvalidState"),  # no trusted supervisor yet
         ):
             with pytest.raises(ua.UaStatusCodeError) as err:
                 await obj.call_method(method, *args)
@@ -133,6 +133,8 @@ async def test_bad_writes_are_refused_and_values_stay(stack) -> None:
                 await n[path].write_value(value)
             assert type(err.value).__name__ == expected, (path, value)
             assert await n[path].read_value() == before, path
+        # The supervisor's own SetGains is refused while it is not trusted (no heartbeat yet).
+        assert await _call(sup, "SetGains", 1e-3, 1e-5, 0.0) == "BadInvalidState"
 
 
 async def test_heartbeat_gains_and_fallback_within_timeout_plus_one_scan(stack) -> None:
@@ -259,3 +261,135 @@ async def test_plc_warm_restart_keeps_setpoint_and_mode(tmp_path: Path) -> None:
     finally:
         await plc.stop()
         await plant.stop()
+
+
+# --------------------------------------------------------------------------- gain sources
+GAIN_PATHS = [
+    "PLC.Status.Scan",
+    "PLC.LIC1.SP",
+    "PLC.LIC1.PV",
+    "PLC.LIC1.MV",
+    "PLC.LIC1.Kp",
+    "PLC.LIC1.Ki",
+    "PLC.LIC1.Kd",
+    "PLC.LIC1.GainSource",
+    "PLC.Supervisor.Heartbeat",
+]
+FIXED_GAINS = (4.29e-4, 5.32e-6, -1.42e-4)  # three_tank_energies_sim.yaml, LIC1 (digest 2.1)
+ENGINEER_GAINS = (8.0e-4, 8.0e-6, -1.0e-4)
+
+
+async def _call(client, name: str, *args) -> str:
+    """Call PLC.LIC1.<name>(*args); the status code's name."""
+    idx = await client.get_namespace_index("urn:tanklab")
+    obj = client.get_node(ua.NodeId("PLC.LIC1", idx))
+    try:
+        await obj.call_method(ua.NodeId(f"PLC.LIC1.{name}", idx), *args)
+    except ua.UaStatusCodeError as e:
+        return type(e).__name__
+    return "Good"
+
+
+async def _source_and_gains(n) -> tuple[int, tuple[float, float, float]]:
+    paths = ("PLC.LIC1.GainSource", "PLC.LIC1.Kp", "PLC.LIC1.Ki", "PLC.LIC1.Kd")
+    values = [await n[p].read_value() for p in paths]
+    return values[0], (values[1], values[2], values[3])
+
+
+async def test_engineer_gains_release_and_reset_through_the_real_server(stack) -> None:
+    _, url = stack
+    async with (
+        await secure(url) as eng,
+        await secure(url, "operator") as op,
+        await secure(url, "observer") as obs,
+        await secure(url, tier="supervisor") as sup,
+    ):
+        n = await resolve(eng, GAIN_PATHS)
+        await wait_until(lambda: _near_sp(n), 60, what="T1 regulated near its setpoint (MV inside its range)")
+        # An Observer may call none of the three.
+        for name, args in (("SetGains", ENGINEER_GAINS), ("ResetGains", ()), ("ReleaseGains", ())):
+            assert await _call(obs, name, *args) == "BadUserAccessDenied", name
+        # The engineer's SetGains works with no supervisor at all and is labelled ENGINEER (3).
+        assert await _call(eng, "SetGains", *ENGINEER_GAINS) == "Good"
+
+        async def engineer_applied() -> bool:
+            return await _source_and_gains(n) == (3, ENGINEER_GAINS)
+
+        await wait_until(engineer_applied, 20, what="ENGINEER gains applied")
+        # NaN and out-of-box gains are refused whole; the engineer's gains stay.
+        for bad in ((float("nan"), 8e-6, 0.0), (1.0, 8e-6, 0.0), (8e-4, 8e-6, float("inf"))):
+            assert await _call(eng, "SetGains", *bad) == "BadOutOfRange", bad
+        # The supervisor, alive and trusted, is refused on the held loop.
+        s = await resolve(sup, ["PLC.Supervisor.Heartbeat", "PLC.Supervisor.Alive"])
+        beat = 0
+
+        async def heartbeat() -> None:
+            nonlocal beat
+            beat += 1
+            await s["PLC.Supervisor.Heartbeat"].write_value(ua.Variant(beat, ua.VariantType.UInt32))
+
+        async def alive_for_a_while() -> bool:
+            await heartbeat()
+            return beat > 40 and await s["PLC.Supervisor.Alive"].read_value() is True
+
+        await wait_until(alive_for_a_while, 20, what="the supervisor alive for several scans")
+        assert await _call(sup, "SetGains", *FIXED_GAINS) == "BadInvalidState"
+        await heartbeat()
+        await _scans_later(n, 2)
+        assert await _source_and_gains(n) == (3, ENGINEER_GAINS)
+        # The operator hands the loop back: the gains stay, source FIXED (0); the supervisor may
+        # push again and its gains are labelled SUPERVISOR (1).
+        assert await _call(op, "ReleaseGains") == "Good"
+        await heartbeat()
+        await _scans_later(n, 1)
+        assert await _source_and_gains(n) == (0, ENGINEER_GAINS)
+        supervisor_gains = (6.0e-4, 6.0e-6, -1.2e-4)
+
+        async def supervisor_accepted() -> bool:
+            await heartbeat()
+            return await _call(sup, "SetGains", *supervisor_gains) == "Good"
+
+        await wait_until(supervisor_accepted, 20, what="the supervisor's SetGains accepted after the release")
+
+        async def supervisor_applied() -> bool:
+            await heartbeat()
+            return await _source_and_gains(n) == (1, supervisor_gains)
+
+        await wait_until(supervisor_applied, 20, what="SUPERVISOR gains applied")
+        # ResetGains (operator): the fixed gains at the next scan boundary, source FIXED, and the
+        # scan after the boundary moves the MV by the fixed gains' own velocity-form increment.
+        nodes = [
+            n[p]
+            for p in ("PLC.Status.Scan", "PLC.LIC1.SP", "PLC.LIC1.PV", "PLC.LIC1.MV", "PLC.LIC1.GainSource")
+        ]
+        samples: dict[int, tuple[float, float, float, int]] = {}
+
+        async def record(until_fixed: bool) -> bool:
+            await heartbeat()
+            scan, sp, pv, mv_now, source = await read_values(eng, nodes)
+            samples[int(scan)] = (float(sp), float(pv), float(mv_now), int(source))
+            if not until_fixed:
+                return len(samples) >= 4
+            return sum(v[3] == 0 for v in samples.values()) >= 2
+
+        await wait_until(lambda: record(False), 10, what="scans recorded before the reset", poll_s=0.002)
+        assert await _call(op, "ResetGains") == "Good"
+        await wait_until(lambda: record(True), 10, what="two scans on FIXED gains", poll_s=0.002)
+        k = min(scan for scan, v in samples.items() if v[3] == 0)  # the first scan on FIXED gains
+        assert samples[k - 1][3] == 1  # the scan before ran on the supervisor's gains
+        e = {j: samples[j][0] - samples[j][1] for j in (k - 2, k - 1, k)}
+        kp, ki, kd = FIXED_GAINS  # Ts = 1 s; c = 1 in this config: D on the error
+        increment = kp * (e[k] - e[k - 1]) + ki * e[k] + kd * (e[k] - 2 * e[k - 1] + e[k - 2])
+        mv_k, mv_prev = samples[k][2], samples[k - 1][2]
+        assert 0.0 < mv_prev < 1.2e-4 and 0.0 < mv_k < 1.2e-4
+        assert mv_k - mv_prev == pytest.approx(increment, rel=1e-6, abs=1e-15)
+        assert await _source_and_gains(n) == (0, FIXED_GAINS)
+
+
+async def _scans_later(n, count: int) -> None:
+    scan0 = await n["PLC.Status.Scan"].read_value()
+    await wait_until(lambda: _scan_after(n, scan0 + count - 1), 10, what=f"{count} scans")
+
+
+async def _near_sp(n) -> bool:
+    return abs(await n["PLC.LIC1.PV"].read_value() - await n["PLC.LIC1.SP"].read_value()) < 0.02

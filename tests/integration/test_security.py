@@ -72,6 +72,8 @@ MATRIX: dict[str, set[Role]] = {
     "PLC.LIC*.SetGains": {Role.ENGINEER, Role.SUPERVISOR},
     "PLC.Supervisor.Heartbeat": {Role.SUPERVISOR},
     "PLC.Interlock.Reset": OPS,
+    "PLC.LIC*.ResetGains": OPS,
+    "PLC.LIC*.ReleaseGains": OPS,
     "Supervisor.Mode": {Role.ENGINEER},
 }
 # Who can open a session on which tier: tier certificates act on the tier below them, and

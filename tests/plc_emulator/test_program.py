@@ -31,6 +31,7 @@ ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 AUTO, MANUAL, REMOTE = LoopMode.AUTO, LoopMode.MANUAL, LoopMode.REMOTE
 FIXED, SUPERVISOR, FALLBACK = GainSource.FIXED, GainSource.SUPERVISOR, GainSource.FALLBACK
+ENGINEER = GainSource.ENGINEER
 
 # Energies fixed gains (digest 2.1), u in m^3/s, e in m.
 KP1, KI1, KD1 = 4.29e-4, 5.32e-6, -1.42e-4
@@ -359,6 +360,183 @@ def test_set_gains_on_a_block_without_pid_gains_is_invalid_state(block: str) -> 
     assert rig.plc.stage_gains("LIC1", 0.1, 0.1, 0.0) is GainStatus.INVALID_STATE
     assert rig.plc.stage_gains("LIC1", math.nan, 0.1, 0.0) is GainStatus.INVALID_STATE
     assert rig.plc.loop("LIC1").staged is None
+
+
+# =========================================================================== gain sources
+def _gains(out: ScanOutputs, loop: str) -> tuple[float, float, float]:
+    v = out.values
+    return v[f"PLC.{loop}.Kp"], v[f"PLC.{loop}.Ki"], v[f"PLC.{loop}.Kd"]
+
+
+def test_engineer_set_gains_is_labelled_engineer_and_needs_no_supervisor() -> None:
+    rig = Rig(energies())
+    levels = [0.39, 0.2, 0.25]  # e1 = 0.01 every scan
+    for _ in range(3):  # no heartbeat ever: the supervisor would be refused (never trusted)
+        out = rig.scan(levels)
+    assert not rig.plc.supervisor_trusted
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0) is GainStatus.INVALID_STATE
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, ENGINEER) is GainStatus.STAGED
+    assert rig.plc.loop("LIC1").source is FIXED  # nothing before the boundary
+    u_before = mv(out, "LIC1")
+    out = rig.scan(levels)
+    # Constant e after three scans (the D memory flushed): dMV = Ki_new Ts e = 2e-5 * 1 * 0.01.
+    assert mv(out, "LIC1") - u_before == pytest.approx(2e-7, rel=1e-9)
+    assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0)
+    assert out.values["PLC.LIC1.GainSource"] == ENGINEER == 3
+    assert out.values["PLC.LIC2.GainSource"] == FIXED
+    with pytest.raises(ValueError, match="SUPERVISOR or ENGINEER"):
+        rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, FALLBACK)
+
+
+@pytest.mark.parametrize(
+    "gains", [(math.nan, 1e-5, 0.0), (1e-3, math.inf, 0.0), (2e-2, 1e-5, 0.0), (1e-3, 1e-5, -0.02)]
+)
+def test_inadmissible_engineer_gains_are_refused_and_the_old_ones_stay(
+    gains: tuple[float, float, float],
+) -> None:
+    rig = Rig(energies())
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, ENGINEER) is GainStatus.STAGED
+    rig.scan([0.4, 0.2, 0.3])
+    assert rig.plc.stage_gains("LIC1", *gains, ENGINEER) is GainStatus.OUT_OF_RANGE
+    out = rig.scan([0.4, 0.2, 0.3])
+    assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0) and out.values["PLC.LIC1.GainSource"] == ENGINEER
+
+
+def test_supervisor_is_refused_while_an_engineer_holds_the_loop_until_release() -> None:
+    rig = Rig(energies())
+    levels = [0.4, 0.2, 0.3]
+    rig.trust(levels)
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, ENGINEER) is GainStatus.STAGED
+    # Refused already while the engineer's set waits for the boundary, and after it.
+    assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE
+    rig.plc.heartbeat(1)
+    out = rig.scan(levels)
+    assert out.values["PLC.LIC1.GainSource"] == ENGINEER and rig.plc.engineer_holds("LIC1")
+    assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE
+    # The other loop is the supervisor's as before.
+    assert rig.plc.stage_gains("LIC2", 1e-3, 3e-5, -1e-3) is GainStatus.STAGED
+    rig.plc.heartbeat(2)
+    out = rig.scan(levels)
+    assert out.values["PLC.LIC2.GainSource"] == SUPERVISOR and _gains(out, "LIC1") == (1e-3, 2e-5, 0.0)
+    # ReleaseGains: the gains stay, source FIXED, and the supervisor may push again.
+    assert rig.plc.release_gains("LIC1") is GainStatus.STAGED
+    assert rig.plc.loop("LIC1").source is FIXED and not rig.plc.engineer_holds("LIC1")
+    rig.plc.heartbeat(3)
+    out = rig.scan(levels)
+    assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0) and out.values["PLC.LIC1.GainSource"] == FIXED
+    assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.STAGED
+    rig.plc.heartbeat(4)
+    out = rig.scan(levels)
+    assert _gains(out, "LIC1") == (5e-4, 6e-6, 0.0) and out.values["PLC.LIC1.GainSource"] == SUPERVISOR
+    # Release on a loop nobody holds changes nothing.
+    assert rig.plc.release_gains("LIC1") is GainStatus.STAGED
+    assert rig.plc.loop("LIC1").source is SUPERVISOR
+
+
+def test_release_drops_an_engineer_set_still_staged() -> None:
+    rig = Rig(energies())
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, ENGINEER) is GainStatus.STAGED
+    assert rig.plc.release_gains("LIC1") is GainStatus.STAGED
+    out = rig.scan([0.4, 0.2, 0.3])
+    assert _gains(out, "LIC1") == (KP1, KI1, KD1) and out.values["PLC.LIC1.GainSource"] == FIXED
+
+
+@pytest.mark.parametrize("holder", [SUPERVISOR, ENGINEER])
+def test_reset_returns_to_the_fixed_gains_at_the_boundary_without_a_bump(holder: GainSource) -> None:
+    rig = Rig(energies())
+    levels = [0.39, 0.2, 0.25]  # e1 = 0.01 every scan
+    rig.trust(levels)
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 5e-4, holder) is GainStatus.STAGED
+    for k in range(3):  # three scans at constant e under the new gains: D memory flushed
+        rig.plc.heartbeat(100 + k)
+        out = rig.scan(levels)
+    assert out.values["PLC.LIC1.GainSource"] == holder and _gains(out, "LIC1") == (1e-3, 2e-5, 5e-4)
+    assert rig.plc.reset_gains("LIC1") is GainStatus.STAGED
+    # Until the boundary: the applied gains stay, and the supervisor may not stage over the reset.
+    assert rig.plc.loop("LIC1").source is holder
+    assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE
+    u_before = mv(out, "LIC1")
+    rig.plc.heartbeat(200)
+    out = rig.scan(levels)
+    # The scan after the boundary moves the MV by the fixed gains' increment only: constant e, so
+    # P and D increments are 0 and dMV = KI1 Ts e = 5.32e-6 * 1 * 0.01 (no jump from the gains).
+    assert mv(out, "LIC1") - u_before == pytest.approx(KI1 * 0.01, rel=1e-9)
+    assert _gains(out, "LIC1") == (KP1, KI1, KD1) and out.values["PLC.LIC1.GainSource"] == FIXED
+    assert not rig.plc.engineer_holds("LIC1")
+    assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.STAGED  # adaptation again
+
+
+def test_reset_is_refused_while_a_mode_change_is_pending() -> None:
+    rig = Rig(energies())
+    levels = [0.4, 0.2, 0.3]
+    rig.scan(levels)
+    rig.plc.set_mode("LIC1", MANUAL)
+    assert rig.plc.mode_change_pending("LIC1") and not rig.plc.mode_change_pending("LIC2")
+    assert rig.plc.reset_gains("LIC1") is GainStatus.INVALID_STATE
+    assert rig.plc.loop("LIC1").staged is None
+    assert rig.plc.reset_gains("LIC2") is GainStatus.STAGED  # the other loop is not changing mode
+    rig.scan(levels)  # the new mode has run: the reset is accepted again
+    assert not rig.plc.mode_change_pending("LIC1")
+    assert rig.plc.reset_gains("LIC1") is GainStatus.STAGED
+    rig.plc.set_mode("LIC1", MANUAL)  # the same mode again is no change
+    assert not rig.plc.mode_change_pending("LIC1")
+
+
+@pytest.mark.parametrize("block", ["nlpi", "mrac"])
+def test_reset_and_release_on_a_block_without_pid_gains_are_invalid_state(block: str) -> None:
+    rig = Rig(single_tank(block))
+    assert rig.plc.reset_gains("LIC1") is GainStatus.INVALID_STATE
+    assert rig.plc.release_gains("LIC1") is GainStatus.INVALID_STATE
+    assert rig.plc.stage_gains("LIC1", 0.1, 0.1, 0.0, ENGINEER) is GainStatus.INVALID_STATE
+    assert rig.plc.loop("LIC1").staged is None
+
+
+def test_watchdog_leaves_engineer_gains_and_an_engineer_request_alone() -> None:
+    rig = Rig(energies())
+    levels = [0.4, 0.2, 0.3]
+    rig.trust(levels)
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, ENGINEER) is GainStatus.STAGED
+    assert rig.plc.stage_gains("LIC2", 1e-3, 3e-5, -1e-3) is GainStatus.STAGED
+    rig.plc.heartbeat(1)
+    rig.scan(levels)
+    # The heartbeat stops; an engineer stages new gains just before the timeout.
+    for _ in range(2):
+        rig.scan(levels)
+    assert rig.plc.stage_gains("LIC1", 2e-3, 3e-5, 0.0, ENGINEER) is GainStatus.STAGED
+    out = rig.scan(levels)  # timeout 3 s: expired on this scan
+    assert not rig.plc.watchdog.alive
+    assert out.values["PLC.LIC2.GainSource"] == FALLBACK and _gains(out, "LIC2") == (KP2, KI2, KD2)
+    assert out.values["PLC.LIC1.GainSource"] == ENGINEER and _gains(out, "LIC1") == (2e-3, 3e-5, 0.0)
+    for _ in range(5):
+        out = rig.scan(levels)
+    assert out.values["PLC.LIC1.GainSource"] == ENGINEER and _gains(out, "LIC1") == (2e-3, 3e-5, 0.0)
+    # An engineer works while the supervisor is lost: SetGains and ResetGains.
+    assert rig.plc.reset_gains("LIC1") is GainStatus.STAGED
+    out = rig.scan(levels)
+    assert out.values["PLC.LIC1.GainSource"] == FIXED and _gains(out, "LIC1") == (KP1, KI1, KD1)
+
+
+def test_an_engineer_hold_survives_a_warm_restart() -> None:
+    rig = Rig(energies())
+    assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, ENGINEER) is GainStatus.STAGED
+    rig.scan([0.4, 0.2, 0.3])
+    saved = rig.plc.retained()
+    assert saved["loops"]["LIC1"]["source"] == "ENGINEER" and saved["loops"]["LIC1"]["gains"] == [
+        1e-3,
+        2e-5,
+        0.0,
+    ]
+    new = Rig(energies())
+    assert new.plc.restore_retained(saved) == []
+    lp = new.plc.loop("LIC1")
+    assert lp.source is ENGINEER and lp.applied == PidGainsSpec(kp=1e-3, ki=2e-5, kd=0.0)
+    fixed = energies().plc
+    assert fixed is not None and lp.last_accepted == fixed.loops[0].gains  # not the supervisor's
+    assert not new.plc.mode_change_pending("LIC1")  # a restored mode is no change in progress
+    new.trust([0.4, 0.2, 0.3])
+    assert new.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE  # still held
+    assert new.plc.release_gains("LIC1") is GainStatus.STAGED
+    assert new.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.STAGED
 
 
 # =========================================================================== watchdog
@@ -780,6 +958,9 @@ requests = st.one_of(
     st.tuples(st.just("manual"), st.sampled_from(LOOPS), st.floats(0.0, 1.2e-4)),
     st.tuples(st.just("remote"), st.sampled_from(LOOPS), st.floats(0.0, 1.2e-4)),
     st.tuples(st.just("gains"), st.sampled_from(LOOPS), st.tuples(any_gain, any_gain, any_gain)),
+    st.tuples(st.just("egains"), st.sampled_from(LOOPS), st.tuples(any_gain, any_gain, any_gain)),
+    st.tuples(st.just("greset"), st.sampled_from(LOOPS), st.none()),
+    st.tuples(st.just("release"), st.sampled_from(LOOPS), st.none()),
     st.tuples(st.just("reset"), st.none(), st.none()),
     st.tuples(
         st.just("scan"),
@@ -805,9 +986,11 @@ def test_random_requests_keep_every_invariant(seq: list[tuple[Any, Any, Any]], f
     lo, hi = plc.pump_min, plc.pump_max
     t, beat = 0.0, 0
     last_levels = np.array([0.4, 0.2, 0.3])
+    touched: set[str] = set()  # loops an engineer or operator acted on since the last scan
 
     def scan(levels: np.ndarray, quality: str) -> None:
         nonlocal t
+        held = {lp.spec.name: (lp.applied, lp.source) for lp in plc.loops if lp.source is ENGINEER}
         good = np.array([quality != "flag", True, quality != "flag"])
         lv = np.where(quality == "nan", np.nan, levels)
         prev = {lp.spec.name: lp.mv for lp in plc.loops}
@@ -827,6 +1010,13 @@ def test_random_requests_keep_every_invariant(seq: list[tuple[Any, Any, Any]], f
             assert lp.pid is not None and lp.pid_index is not None
             i = lp.pid_index
             assert (lp.pid.gains.Kp[i, i], lp.pid.gains.Ki[i, i], lp.pid.gains.Kd[i, i]) == g
+        # ENGINEER gains change only by an engineer's or operator's own request (never the
+        # watchdog, never the supervisor).
+        for name, before in held.items():
+            if name not in touched:
+                lp = plc.loop(name)
+                assert (lp.applied, lp.source) == before, name
+        touched.clear()
         # Interlocks: a delivered reading at or above HH stops that tank's pump this scan.
         for il in plc.interlocks:
             if quality != "io" and good[il.tank] and lv[il.tank] >= il.high_high_m:
@@ -845,10 +1035,23 @@ def test_random_requests_keep_every_invariant(seq: list[tuple[Any, Any, Any]], f
             plc.set_manual_mv(a, b)
         elif kind == "remote":
             plc.set_remote_mv(a, b)
-        elif kind == "gains":
-            status = plc.stage_gains(a, *b)
+        elif kind in ("gains", "egains"):
+            held = plc.engineer_holds(a)
+            status = plc.stage_gains(a, b[0], b[1], b[2], ENGINEER if kind == "egains" else SUPERVISOR)
             if status is GainStatus.STAGED:
                 admitted[a].add((float(b[0]), float(b[1]), float(b[2])))
+            if kind == "gains" and held:  # refused (OUT_OF_RANGE first if the values are bad)
+                assert status is not GainStatus.STAGED
+            if kind == "egains":
+                touched.add(a)
+        elif kind == "greset":
+            pending = plc.mode_change_pending(a)
+            assert (plc.reset_gains(a) is GainStatus.INVALID_STATE) == pending
+            touched.add(a)
+        elif kind == "release":
+            assert plc.release_gains(a) is GainStatus.STAGED
+            assert plc.loop(a).source is not ENGINEER
+            touched.add(a)
         elif kind == "reset":
             plc.reset_interlocks()
         elif kind == "scan":
