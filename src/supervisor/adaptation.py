@@ -65,6 +65,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from supervisor.prior_rls import PriorRls
 from tanklab.rls import ExpForgettingRls
 
 __all__ = [
@@ -87,9 +88,17 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 SaturatedSamples = Literal["one_sided", "drop", "equality"]
+Estimator = Literal["prior", "rls"]
+GainPath = Literal["geometric", "linear"]
 
 #: Relative tolerance on the rate limit and on the input-bound comparison (rounding only).
 _REL_TOL = 1e-9
+#: The noise estimate's memory, in units of ``memory_s`` (a slow property of the transmitters).
+_NOISE_MEMORY_FACTOR = 10.0
+#: Dead zone per estimated noise standard deviation, in units of ``sigma / error_scale``.
+_NOISE_DEAD_ZONE = 17.0
+#: Relative band of the noise limit's hysteresis (engage, release, move).
+_NOISE_HYSTERESIS = 0.2
 
 
 class RejectReason(StrEnum):
@@ -372,6 +381,31 @@ class AdaptationConfig:
         the clamped move: digest 2.4's collapse).
     saturation_band : float, default 0.005
         Width of that band as a fraction of ``u_max - u_min`` (solver tolerance headroom).
+    estimator : {"prior", "rls"}, default "prior"
+        "prior": :class:`~supervisor.prior_rls.PriorRls`, least squares with a persistent prior
+        at the model-based tuning (:func:`model_based_gains`) and directional forgetting: the
+        information matrix is at least the prior's, so its condition number is bounded, and
+        where the data say nothing the estimate is the model-based tuning (ADR 0014). "rls":
+        the former exponentially forgetting RLS from the fixed gains (``p0``, ``trace_cap``),
+        kept for comparison: ill-conditioned in closed loop (docs/adaptation.md 2.9).
+    prior_closed_loop_s : float or None, default None
+        ``tau_c`` [s] of the model-based tuning (SIMC); None means ``4 Ts``.
+    prior_weight : float, default 1.0
+        ``w`` in ``L0 = diag(w / sigma^2)``, sigma the larger of the prior's and the fixed gain's
+        size per parameter (dimensionless): the prior weighs as much as ``w`` samples that measure
+        the parameter at its own scale.
+    path : {"geometric", "linear"}, default "geometric"
+        How a proposal moves from the applied gains toward the estimate: "geometric" moves
+        gains that keep their sign along a straight line in log space (every gain the same
+        fraction of its log-distance), the others linearly, with one step fraction per pump;
+        "linear" is the straight line in gain space (the former proposer).
+    kd_keep_sign : bool, default True
+        The estimate's own-loop Kd stays between 0 and the fixed Kd (it may shrink to 0, never
+        change sign: the model-based tuning has Kd = 0).
+    box_limit_fraction : float, default 0.01
+        A gain closer to a box limit than this fraction of the smaller of the box width and the
+        gain's natural scale (the larger of its fixed and model-based values) is reported on the
+        limit (``on_box_limit``).
     """
 
     memory_s: float = 60.0
@@ -391,6 +425,13 @@ class AdaptationConfig:
     horizon_steps: int = 120
     saturated: SaturatedSamples = "one_sided"
     saturation_band: float = 0.005
+    estimator: Estimator = "prior"
+    prior_closed_loop_s: float | None = None
+    prior_weight: float = 1.0
+    path: GainPath = "geometric"
+    kd_keep_sign: bool = True
+    box_limit_fraction: float = 0.01
+    noise_move_budget: float | None = 0.0035
 
     def __post_init__(self) -> None:
         if not (
@@ -419,6 +460,20 @@ class AdaptationConfig:
         band = _positive(self.saturation_band, "saturation_band", allow_zero=True)
         if band >= 0.5:
             raise ValueError(f"saturation_band must be < 0.5 (fraction of the input range), got {band!r}")
+        if self.estimator not in ("prior", "rls"):
+            raise ValueError(f"estimator must be 'prior' or 'rls', got {self.estimator!r}")
+        if self.prior_closed_loop_s is not None:
+            _positive(self.prior_closed_loop_s, "prior_closed_loop_s")
+        _positive(self.prior_weight, "prior_weight")
+        if self.path not in ("geometric", "linear"):
+            raise ValueError(f"path must be 'geometric' or 'linear', got {self.path!r}")
+        if not isinstance(self.kd_keep_sign, bool):
+            raise TypeError("kd_keep_sign must be a bool")
+        if self.noise_move_budget is not None:
+            _positive(self.noise_move_budget, "noise_move_budget")
+        frac = _positive(self.box_limit_fraction, "box_limit_fraction", allow_zero=True)
+        if frac >= 0.5:
+            raise ValueError(f"box_limit_fraction must be < 0.5 (fraction of the box width), got {frac!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -486,6 +541,22 @@ class PumpDiagnostics:
     ready : bool
         Enough informative samples (applied updates plus one-sided corrections, at least the
         number of parameters) to propose gains.
+    excitation : float
+        Smallest eigenvalue of the remembered data's information matrix ``R`` (dimensionless,
+        >= 0): how well the weakest parameter direction is measured. For ``estimator="rls"``:
+        ``1 / lambda_max(P)`` minus nothing (the RLS has no separate prior), i.e. the smallest
+        eigenvalue of ``P^-1``.
+    condition_number : float
+        Condition number of the information matrix (``L0 + R``; ``P`` for "rls"), >= 1.
+    box_distance : ndarray, shape (3 * loops used,)
+        Per estimated gain ``[Kp, Ki, Kd, ...]``: distance of the estimate to the nearest limit of
+        the gain box, as a fraction of the box width (0 on a limit, 0.5 in the middle; NaN for a
+        pinned gain of zero width).
+    on_box_limit : bool
+        The estimate or the applied gains of this pump sit on a box limit
+        (:meth:`PidGainAdapter.on_box_limit`): the box, not the data, decides such a gain.
+    prior : ndarray, shape (3 * loops used,)
+        The model-based tuning the estimate is regularised toward (physical units).
     """
 
     theta: FloatArray
@@ -496,6 +567,11 @@ class PumpDiagnostics:
     dropped_saturated: int
     one_sided_updates: int
     ready: bool
+    excitation: float = math.nan
+    condition_number: float = math.nan
+    box_distance: FloatArray = field(default_factory=lambda: np.zeros(0))
+    on_box_limit: bool = False
+    prior: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True)
@@ -623,6 +699,66 @@ def closed_loop_spectral_radius(
     """
     M = closed_loop_matrix(A, B, C, Kp, Ki, Kd, ts_s)
     return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def model_based_gains(
+    model: LoopModel, own_loop: tuple[int, ...] | None, tau_c_s: float | ArrayLike
+) -> PidGains:
+    """SIMC PI tuning of each pump's own loop from the diagonal of the linear model (Kd = 0).
+
+    For pump ``i`` on loop ``j`` whose PV is state ``t`` (the largest entry of ``C[j]``, scale
+    ``c = C[j, t]``), the own-tank model ``x_t(k+1) = a x_t(k) + b u_i(k)`` with ``a = A[t, t]``
+    and ``b = c B[t, i]`` (error unit per pump unit) is, in continuous time, a first-order lag
+    ``K / (tau s + 1)`` with ``tau = -Ts / ln a`` [s] and ``K = b / (1 - a)``, plus the sample-and-
+    hold delay ``theta = Ts / 2``. Skogestad's SIMC rules (2003) then give::
+
+        Kp = tau / (K (tau_c + theta)),   Ti = min(tau, 4 (tau_c + theta)),   Ki = Kp / Ti,  Kd = 0
+
+    and for an integrating tank (``a >= 1``, slope ``k' = b / Ts``): ``Kp = 1 / (k' (tau_c +
+    theta))``, ``Ti = 4 (tau_c + theta)``. Cross gains are 0. A pump whose own tank the model does
+    not move (``b <= 0``) gets zero gains: the caller's bounds decide.
+
+    Parameters
+    ----------
+    model : LoopModel
+    own_loop : tuple of int or None
+        Loop of each pump (None: pump i <-> loop i).
+    tau_c_s : float
+        Desired closed-loop time constant [s], > 0.
+
+    Returns
+    -------
+    PidGains
+        Shape (n_u, n_loops), [pump unit / error unit], [.. / (error unit s)], [.. s / error unit].
+    """
+    m, nl = model.n_u, model.n_loops
+    tau_cs = np.broadcast_to(np.asarray(tau_c_s, dtype=np.float64), (m,))
+    if not (np.isfinite(tau_cs).all() and (tau_cs > 0).all()):
+        raise ValueError("tau_c_s must be finite and > 0 (a scalar or one per pump)")
+    own = tuple(range(m)) if own_loop is None else tuple(own_loop)
+    if len(own) != m or any(not 0 <= j < nl for j in own):
+        raise ValueError(f"own_loop must give one loop index in [0, {nl}) per pump ({m})")
+    ts = model.ts_s
+    theta = ts / 2.0
+    kp = np.zeros((m, nl))
+    ki = np.zeros((m, nl))
+    for i, j in enumerate(own):
+        tau_c = float(tau_cs[i])
+        t = int(np.argmax(np.abs(model.C[j])))
+        a = float(model.A[t, t])
+        b = float(model.C[j, t] * model.B[t, i])
+        if not b > 0.0:
+            continue
+        if 0.0 < a < 1.0:
+            tau = -ts / math.log(a)
+            gain = b / (1.0 - a)
+            kp[i, j] = tau / (gain * (tau_c + theta))
+            ti = min(tau, 4.0 * (tau_c + theta))
+        else:
+            kp[i, j] = 1.0 / ((b / ts) * (tau_c + theta))
+            ti = 4.0 * (tau_c + theta)
+        ki[i, j] = kp[i, j] / ti
+    return PidGains(kp, ki, np.zeros((m, nl)))
 
 
 def simulate_pid_inputs(
@@ -835,10 +971,38 @@ class PidGainAdapter:
         if not sign_ok:
             raise ValueError(f"fixed gains violate the sign guard: {detail}")
 
+        # Projection bounds in physical units = box intersected with the sign region.
+        lo_phys = box.lower.stacked().copy()
+        lo_phys[0][self._own_mask] = np.maximum(lo_phys[0][self._own_mask], 0.0)
+        own_ki_lo = lo_phys[1][np.arange(m), own]
+        lo_phys[1][np.arange(m), own] = np.maximum(own_ki_lo, ki_min)
+        hi_phys = box.upper.stacked().copy()
+        if cfg.kd_keep_sign:
+            # Kd between 0 and its fixed value (ADR 0014): it may shrink to 0, never flip sign.
+            kd_f = g_fixed[2]
+            keep = self._own_mask
+            lo_phys[2][keep] = np.maximum(lo_phys[2][keep], np.minimum(kd_f[keep], 0.0))
+            hi_phys[2][keep] = np.minimum(hi_phys[2][keep], np.maximum(kd_f[keep], 0.0))
+        if (lo_phys > hi_phys).any():
+            raise ValueError("the gain box leaves no room for the sign guard (Kp >= 0, Ki >= ki_min)")
+        self._lo_phys, self._hi_phys = lo_phys, hi_phys
+
+        # The model-based tuning: the prior of the estimator (and the nodes' reference).
+        tau_c = cfg.prior_closed_loop_s if cfg.prior_closed_loop_s is not None else 4.0 * model.ts_s
+        prior_g = model_based_gains(model, own, tau_c).stacked()
+        prior_g = np.where(self._own_mask, prior_g, g_fixed)  # cross gains: the fixed ones
+        prior_g = np.clip(prior_g, lo_phys, hi_phys)
+        self._prior = PidGains.from_stacked(prior_g)
+
         # Rate-limit floor
         frac = cfg.max_change_fraction
         if cfg.change_floor is None:
             floor = frac * 0.1 * np.broadcast_to(row_scale, g_fixed.shape)
+            if cfg.estimator == "prior":
+                # A gain's natural scale is the larger of its fixed and its model-based value: a
+                # push may move it by max_change_fraction of that scale, or of its applied value.
+                natural = np.maximum(np.abs(prior_g), np.abs(g_fixed)) * self._adapt_mask
+                floor = np.maximum(floor, frac * natural)
         else:
             if cfg.change_floor.shape != (m, nl):
                 raise ValueError(f"change_floor must have shape {(m, nl)}")
@@ -847,42 +1011,65 @@ class PidGainAdapter:
                 raise ValueError("change_floor must be finite and >= 0")
         self._floor = np.array(floor, dtype=np.float64)
 
-        # Projection bounds in physical units = box intersected with the sign region.
-        lo_phys = box.lower.stacked().copy()
-        lo_phys[0][self._own_mask] = np.maximum(lo_phys[0][self._own_mask], 0.0)
-        own_ki_lo = lo_phys[1][np.arange(m), own]
-        lo_phys[1][np.arange(m), own] = np.maximum(own_ki_lo, ki_min)
-        hi_phys = box.upper.stacked()
-        if (lo_phys > hi_phys).any():
-            raise ValueError("the gain box leaves no room for the sign guard (Kp >= 0, Ki >= ki_min)")
-
-        # One RLS per pump on dimensionless parameters.
+        # One estimator per pump on dimensionless parameters.
         ts = model.ts_s
         lam = ExpForgettingRls.forgetting_from_memory(ts, cfg.memory_s)
         E = cfg.error_scale
         self._scale: list[FloatArray] = []
-        self._rls: list[ExpForgettingRls] = []
+        self._rls: list[ExpForgettingRls | PriorRls] = []
         for i in range(m):
             U = float(model.u_max[i] - model.u_min[i])
             per_loop = np.array([E / U, ts * E / U, E / (ts * U)])
             s = np.tile(per_loop, len(self._loops[i]))
             self._scale.append(s)
-            theta0 = self._pack(g_fixed, i)
-            self._rls.append(
-                ExpForgettingRls(
-                    s.size,
-                    forgetting=lam,
-                    p0=cfg.p0,
-                    theta0=theta0 * s,
-                    trace_cap=cfg.trace_cap,
-                    excitation_threshold=cfg.excitation_threshold,
-                    lower=self._pack(lo_phys, i) * s,
-                    upper=self._pack(hi_phys, i) * s,
+            lower = self._pack(lo_phys, i) * s
+            upper = self._pack(hi_phys, i) * s
+            if cfg.estimator == "prior":
+                theta_p = self._pack(prior_g, i) * s
+                # Prior scale per parameter: the larger of the prior's and the fixed gain's size,
+                # floored at a tenth of the row's scale of that gain type and at a tenth of the
+                # pump's largest (the dimensionless parameters are comparable): a zero Kd with a
+                # zero fixed Kd still has a scale.
+                sigma = np.maximum.reduce(
+                    [
+                        np.abs(theta_p),
+                        np.abs(self._pack(g_fixed, i) * s),
+                        self._pack(0.1 * np.broadcast_to(row_scale, g_fixed.shape), i) * s,
+                    ]
                 )
-            )
+                sigma = np.maximum(sigma, max(0.1 * float(sigma.max()), 1e-12))
+                self._rls.append(
+                    PriorRls(
+                        theta_p,
+                        cfg.prior_weight / sigma**2,
+                        forgetting=lam,
+                        excitation_threshold=cfg.excitation_threshold,
+                        lower=lower,
+                        upper=upper,
+                    )
+                )
+            else:
+                self._rls.append(
+                    ExpForgettingRls(
+                        s.size,
+                        forgetting=lam,
+                        p0=cfg.p0,
+                        theta0=self._pack(g_fixed, i) * s,
+                        trace_cap=cfg.trace_cap,
+                        excitation_threshold=cfg.excitation_threshold,
+                        lower=lower,
+                        upper=upper,
+                    )
+                )
 
         self._fixed = fixed
         self._applied = fixed
+        self._natural = np.maximum(np.abs(prior_g), np.abs(g_fixed))
+        self._noise_lambda = ExpForgettingRls.forgetting_from_memory(ts, _NOISE_MEMORY_FACTOR * cfg.memory_s)
+        self._kp_noise: list[float | None] = [None] * m
+        self._noise_acc = np.zeros(nl)
+        self._noise_n = 0
+        self._eps_prev: FloatArray | None = None
         self._history: list[_Reading] = []
         self._after_gap = False
         self._last_scan: int | None = None
@@ -930,6 +1117,11 @@ class PidGainAdapter:
         return self._box
 
     @property
+    def change_floor(self) -> PidGains:
+        """The rate limit's absolute floor in force per gain (configured, or the default)."""
+        return PidGains.from_stacked(self._floor)
+
+    @property
     def ki_min(self) -> FloatArray:
         """Own-loop Ki lower bound per pump, shape (n_u,)."""
         return self._ki_min.copy()
@@ -945,6 +1137,8 @@ class PidGainAdapter:
         Informative: an applied RLS update, or a one-sided correction that moved the estimate.
         """
         rls = self._rls[i]
+        if isinstance(rls, PriorRls):
+            return True  # its estimate starts at the model-based tuning, usable from the start
         return rls.n_updates + rls.n_constrained >= rls.n_params
 
     def estimate(self) -> PidGains:
@@ -954,24 +1148,73 @@ class PidGainAdapter:
             self._unpack_into(g, i, rls.theta / self._scale[i])
         return PidGains.from_stacked(g)
 
+    def _box_distance(self, g: FloatArray, i: int) -> FloatArray:
+        """Fraction of the box width from each of pump i's gains (packed) to the nearest limit."""
+        lo = self._pack(self._box.lower.stacked(), i)
+        hi = self._pack(self._box.upper.stacked(), i)
+        width = hi - lo
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = np.minimum(g - lo, hi - g) / width
+        return np.where(width > 0.0, np.clip(d, 0.0, 0.5), math.nan)
+
+    def _health(self, i: int) -> tuple[float, float]:
+        """Pump i's (excitation, condition number) of its information matrix."""
+        rls = self._rls[i]
+        if isinstance(rls, PriorRls):
+            return rls.excitation, rls.condition_number
+        w = np.linalg.eigvalsh(rls.covariance)
+        return float(1.0 / w[-1]), float(w[-1] / w[0])
+
+    def on_box_limit(self, i: int) -> bool:
+        """Pump i's estimate or applied gains sit on a limit of the gain box.
+
+        A gain is on a limit when it is within ``box_limit_fraction`` of the smaller of the box
+        width and the gain's natural scale (the larger of its fixed and model-based values) from
+        it: a Ki of 6.5e-6 in a box [0, 1e-3] is 0.65 % of the width from 0, yet three times its
+        tolerance (0.01 x 1.9e-4) away, and not decided by the box.
+        """
+        lo = self._pack(self._box.lower.stacked(), i)
+        hi = self._pack(self._box.upper.stacked(), i)
+        natural = self._pack(self._natural, i)
+        tol = self._cfg.box_limit_fraction * np.minimum(hi - lo, natural)
+        adapted = (hi - lo) > 0.0
+        for g in (self._rls[i].theta / self._scale[i], self._pack(self._applied.stacked(), i)):
+            near = (np.abs(g - lo) <= tol) | (np.abs(hi - g) <= tol)
+            if (near & adapted).any():
+                return True
+        return False
+
+    @property
+    def prior(self) -> PidGains:
+        """The model-based tuning (:func:`model_based_gains`, clipped into the box and sign region)."""
+        return self._prior
+
     def diagnostics(self) -> AdapterDiagnostics:
-        """Counters and per-pump RLS state (for the ``Supervisor.RLS.*`` nodes)."""
-        pumps = tuple(
-            PumpDiagnostics(
-                theta=rls.theta / self._scale[i],
-                covariance_trace=rls.trace,
-                samples_used=rls.n_updates,
-                skipped_unexcited=rls.n_skipped_unexcited,
-                skipped_nonfinite=rls.n_skipped_nonfinite,
-                dropped_saturated=self._saturated[i],
-                one_sided_updates=self._one_sided[i],
-                ready=self._ready(i),
+        """Counters and per-pump estimator state (for the ``Supervisor.RLS.*`` nodes)."""
+        pumps = []
+        for i, rls in enumerate(self._rls):
+            theta = rls.theta / self._scale[i]
+            excitation, cond = self._health(i)
+            pumps.append(
+                PumpDiagnostics(
+                    theta=theta,
+                    covariance_trace=rls.trace,
+                    samples_used=rls.n_updates,
+                    skipped_unexcited=rls.n_skipped_unexcited,
+                    skipped_nonfinite=rls.n_skipped_nonfinite,
+                    dropped_saturated=self._saturated[i],
+                    one_sided_updates=self._one_sided[i],
+                    ready=self._ready(i),
+                    excitation=excitation,
+                    condition_number=cond,
+                    box_distance=self._box_distance(theta, i),
+                    on_box_limit=self.on_box_limit(i),
+                    prior=self._pack(self._prior.stacked(), i),
+                )
             )
-            for i, rls in enumerate(self._rls)
-        )
         c = self._counters
         return AdapterDiagnostics(
-            pumps=pumps,
+            pumps=tuple(pumps),
             samples_formed=c.formed,
             dropped_gap=c.gap,
             dropped_invalid=c.invalid,
@@ -1067,6 +1310,7 @@ class PidGainAdapter:
 
         r0, r1, r2 = self._history[-1], self._history[-2], self._history[-3]
         self._counters.formed += 1
+        self._track_noise(r0, r1)
         band = self._cfg.saturation_band * (model.u_max - model.u_min)
         if np.isfinite(x_v).all():
             with np.errstate(invalid="ignore"):
@@ -1102,6 +1346,86 @@ class PidGainAdapter:
                 continue
             rls.update(x_hat, y / U)
         return SampleStatus.FORMED
+
+    def _track_noise(self, r0: _Reading, r1: _Reading) -> None:
+        """Update the transmitter-noise estimate from the model's one-step prediction errors.
+
+        ``eps(k) = C x(k) - C [x_op + A (x(k-1) - x_op) + B (u(k-1) - u_op)]`` per loop; model
+        errors are smooth, so their difference ``d(k) = eps(k) - eps(k-1)`` is mostly noise:
+        for white transmitter noise of standard deviation sigma on every level, ``var d`` is about
+        ``6 sigma^2`` (own tank; the couplings add less than 1 %). ``sigma^2`` is the exponentially
+        weighted mean of ``d^2 / 6`` over ``10 memory_s`` with the start-up bias removed; a sample
+        beyond 5 sigma of the current estimate (a step, a leak opening) is clipped there.
+        """
+        model = self._model
+        if not (np.isfinite(r0.x).all() and np.isfinite(r1.x).all()):
+            self._eps_prev = None
+            return
+        pred = model.x_op + model.A @ (r1.x - model.x_op) + model.B @ (r1.mv - model.u_op)
+        eps = model.C @ (r0.x - pred)
+        prev, self._eps_prev = self._eps_prev, eps
+        if prev is None:
+            return
+        d2 = (eps - prev) ** 2 / 6.0
+        lam = self._noise_lambda
+        if self._noise_n >= 10:
+            d2 = np.minimum(d2, 25.0 * self.noise_std() ** 2)
+        self._noise_acc = lam * self._noise_acc + (1.0 - lam) * d2
+        self._noise_n += 1
+
+    def noise_std(self) -> FloatArray:
+        """Estimated transmitter noise per loop [error unit], shape (n_loops,); 0 before data."""
+        if self._noise_n == 0:
+            return np.zeros(self._model.n_loops)
+        return np.sqrt(self._noise_acc / (1.0 - self._noise_lambda**self._noise_n))
+
+    def _update_noise_limit(self) -> None:
+        """From the noise estimate: each pump's loop-gain limit (with hysteresis) and dead zone.
+
+        Transmitter noise of standard deviation ``sigma`` moves a PI's output by about
+        ``sqrt(2) Kp sigma`` rms per scan, so ``Kp <= kp_noise = budget U / (sqrt(2) sigma)`` keeps
+        the noise-driven moves within ``noise_move_budget`` of the range ``U``; :meth:`propose`
+        scales a pump's whole own-loop target (Kp, Ki, Kd) down to it (the loop gain, not the
+        PID's shape). The limit engages below ``Kp_model / 1.2``, releases above ``Kp_model x 1.2``
+        and moves only when it changes by more than 20 %, so that the scatter of the estimate (a
+        few %) does not make the gains wander. The dead zone becomes at least ``17 sigma / E``.
+        """
+        budget = self._cfg.noise_move_budget
+        if self._noise_n < 10:
+            return
+        model = self._model
+        sigma = self.noise_std()
+        base = self._prior.stacked()
+        band = 1.0 + _NOISE_HYSTERESIS
+        for i, j in enumerate(self._own):
+            U = float(model.u_max[i] - model.u_min[i])
+            kp = float(base[0, i, j])
+            if budget is None or sigma[j] <= 0.0 or kp <= 0.0:
+                continue
+            kp_noise = budget * U / (math.sqrt(2.0) * float(sigma[j]))
+            held = self._kp_noise[i]
+            if held is None:
+                if kp_noise < kp / band:
+                    held = kp_noise
+            elif kp_noise > kp * band:
+                held = None
+            elif abs(math.log(kp_noise / held)) > math.log(band):
+                held = kp_noise
+            self._kp_noise[i] = held
+        for i, rls in enumerate(self._rls):
+            if isinstance(rls, PriorRls):
+                # Dead zone sized to the noise (docs/adaptation.md 2.7: about 17 sigma / E, the
+                # regressor's noise-driven change being about 5.3 sigma / E rms): noise alone does
+                # not adapt (measured: 0.5 mm pulled Ki1 below its fixed value without this).
+                sigma_i = float(sigma[list(self._loops[i])].max())
+                rls.set_excitation_threshold(
+                    max(self._cfg.excitation_threshold, _NOISE_DEAD_ZONE * sigma_i / self._cfg.error_scale)
+                )
+
+    @property
+    def noise_gain_limit(self) -> FloatArray:
+        """Each pump's own-loop Kp limit from the noise [pump unit / error unit] (inf: none)."""
+        return np.array([math.inf if v is None else v for v in self._kp_noise])
 
     # ------------------------------------------------------------------ guards
     def _sign_ok(self, gains: PidGains) -> tuple[bool, str]:
@@ -1280,26 +1604,56 @@ class PidGainAdapter:
         period = self._cfg.push_period_s
         if self._t_last_proposal is not None and t - self._t_last_proposal < period - 1e-9 * max(1.0, period):
             return None
+        self._update_noise_limit()
         a = self._applied.stacked()
         target = a.copy()
         for i, rls in enumerate(self._rls):
             if ready[i]:
                 self._unpack_into(target, i, rls.theta / self._scale[i])
+        # The noise limit scales a pump's whole own-loop PID (the loop gain, not its shape): the
+        # MPC teaches its own reaction to the noise (measured: Kp1 2.2e-3 learned under 0.5 mm).
+        for i, j in enumerate(self._own):
+            held = self._kp_noise[i]
+            if ready[i] and held is not None and target[0, i, j] > held:
+                target[:, i, j] *= held / target[0, i, j]
         limit = self._step_limit(a)
-        # Move along the straight line toward the estimate, as far as the rate limit lets every
-        # gain of the pump go (direction-preserving). Clipping each gain on its own bends the path,
+        # Move toward the estimate, as far as the rate limit lets every gain of the pump go, along
+        # one path per pump (direction-preserving). Clipping each gain on its own bends the path,
         # and a bent path between two admissible sets can cross unstable ones (measured: the
         # Energies run froze at the stability margin that way, see docs/adaptation.md).
-        delta = target - a
-        step = np.zeros_like(delta)
-        at_target = np.zeros(delta.shape, dtype=bool)
+        candidate = a.copy()
         for i in range(self._model.n_u):
-            d_i = delta[:, i, :]
-            moving = d_i != 0.0
-            if not moving.any():
-                continue
-            alpha = min(1.0, float((limit[:, i, :][moving] / np.abs(d_i[moving])).min()))
-            step[:, i, :] = alpha * d_i
-            at_target[:, i, :] = alpha >= 1.0
+            candidate[:, i, :] = self._path_step(a[:, i, :], target[:, i, :], limit[:, i, :])
         self._t_last_proposal = t
-        return self.submit(PidGains.from_stacked(np.where(at_target, target, a + step)), t)
+        return self.submit(PidGains.from_stacked(candidate), t)
+
+    def _path_step(self, a: FloatArray, target: FloatArray, limit: FloatArray) -> FloatArray:
+        """One pump's step from ``a`` toward ``target`` (shape (3, n_loops)) under ``limit``.
+
+        ``linear``: ``g = a + alpha (target - a)``. ``geometric``: gains whose applied value and
+        target are non-zero and of one sign move as ``g = a (target / a)^alpha`` (a straight line
+        in log space: every such gain covers the same fraction of its log-distance), the others
+        linearly; ``alpha <= 1`` is the largest step that keeps every gain inside its limit
+        ``|g - a| <= limit``: ``alpha |ln(target / a)| <= ln(1 + limit / |a|)`` upward,
+        ``<= -ln(1 - limit / |a|)`` downward, ``alpha |target - a| <= limit`` on the linear part.
+        """
+        delta = target - a
+        moving = delta != 0.0
+        if not moving.any():
+            return a.copy()
+        geometric = np.zeros(a.shape, dtype=bool)
+        if self._cfg.path == "geometric":
+            geometric = moving & (a * target > 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_d = np.where(geometric, np.log(np.where(geometric, target / a, 1.0)), 0.0)
+            rel = np.where(geometric, limit / np.abs(a), 0.0)
+            up = np.log1p(rel)
+            down = -np.log1p(-np.minimum(rel, 1.0 - 1e-12))
+            room = np.where(log_d > 0.0, up, down)
+            alphas = np.where(geometric, room / np.abs(log_d), limit / np.abs(delta))
+        alpha = min(1.0, float(alphas[moving].min()))
+        if alpha >= 1.0:
+            return target.copy()
+        with np.errstate(over="ignore", invalid="ignore"):
+            g_geo = a * np.exp(alpha * log_d)
+        return np.where(geometric, g_geo, a + alpha * delta)

@@ -46,7 +46,14 @@ from numpy.typing import NDArray
 
 from plant_sim.linearize import equilibrium_flows, linearize, operating_point
 from plant_sim.models import TankNetwork, default_inputs
-from supervisor.adaptation import AdaptationConfig, GainBox, LoopModel, PidGainAdapter, PidGains
+from supervisor.adaptation import (
+    AdaptationConfig,
+    GainBox,
+    LoopModel,
+    PidGainAdapter,
+    PidGains,
+    PumpDiagnostics,
+)
 from supervisor.mpc import MpcConfig, MpcController, MpcModel, MpcResult
 from supervisor.timing import ScanPredictor
 from tanklab.config import SiteConfig
@@ -268,6 +275,14 @@ class SupervisorCore:
             ki_min=spec.ki_min,
             max_change_fraction=spec.max_change_fraction,
             max_spectral_radius=spec.spectral_radius_max,
+            estimator=spec.estimator,
+            prior_closed_loop_s=spec.prior_closed_loop_s,
+            prior_weight=spec.prior_weight,
+            path=spec.path,
+            kd_keep_sign=spec.kd_keep_sign,
+            saturated=spec.saturated,
+            noise_move_budget=spec.noise_move_budget,
+            box_limit_fraction=spec.box_limit_fraction,
         )
         return PidGainAdapter(model, fixed, cfg)
 
@@ -469,6 +484,8 @@ class SupervisorCore:
         if self.adapter is not None:
             d = self.adapter.diagnostics()
             reason = d.last_reject_reason.value if d.last_reject_reason else ""
+            noise = self.adapter.noise_std()
+            scale = [ERROR_SCALE[lp.error_unit] for lp in self.loops]
             for j, name in enumerate(self.loop_names):
                 p = f"Supervisor.RLS.{name}"
                 pump = d.pumps[j]
@@ -479,5 +496,21 @@ class SupervisorCore:
                 v[f"{p}.Accepted"] = d.accepted_pushes
                 v[f"{p}.Rejected"] = d.rejected_pushes + self.pushes_refused
                 v[f"{p}.LastReason"] = reason
+                v.update(_health_values(p, pump, float(noise[j]) / scale[j]))
         return v
 
+
+def _health_values(p: str, pump: PumpDiagnostics, noise_m: float) -> dict[str, Any]:
+    """The adaptation-health nodes of one loop (docs/adaptation.md 2.10), finite for OPC UA."""
+
+    def fin(x: float, default: float = 0.0) -> float:
+        return float(x) if math.isfinite(x) else default
+
+    return {
+        f"{p}.Excitation": fin(pump.excitation),
+        f"{p}.ConditionNumber": fin(pump.condition_number, 1.0),
+        f"{p}.BoxDistance": [fin(float(x)) for x in pump.box_distance],
+        f"{p}.OnBoxLimit": bool(pump.on_box_limit),
+        f"{p}.Prior": [float(x) for x in pump.prior],
+        f"{p}.NoiseStd": fin(noise_m),
+    }

@@ -521,6 +521,46 @@ class AdaptationSpec(Model):
     ki_min: PositiveFloat | None = Field(
         None, description="Smallest admissible own-loop Ki; null = 0.1 x the fixed Ki."
     )
+    estimator: Literal["prior", "rls"] = Field(
+        "prior",
+        description=(
+            "prior: least squares with a persistent prior at the model-based (SIMC) tuning and "
+            "directional forgetting (well-conditioned, ADR 0014); rls: the former exponentially "
+            "forgetting RLS from the fixed gains."
+        ),
+    )
+    prior_closed_loop_s: PositiveFloat | None = Field(
+        None, description="Closed-loop time constant tau_c of the model-based tuning [s]; null = 4 PLC scans."
+    )
+    prior_weight: PositiveFloat = Field(
+        1.0, description="Weight w of the prior: L0 = w / sigma^2 per parameter (dimensionless)."
+    )
+    path: Literal["geometric", "linear"] = Field(
+        "geometric", description="Path of a push toward the estimate: log-space or gain-space straight line."
+    )
+    kd_keep_sign: bool = Field(
+        True, description="Own-loop Kd stays between 0 and the fixed Kd (never flips)."
+    )
+    saturated: Literal["one_sided", "drop", "equality"] = Field(
+        "one_sided",
+        description="What a sample with the MPC at an input bound teaches (docs/adaptation.md 2.2).",
+    )
+    noise_move_budget: PositiveFloat | None = Field(
+        0.0035,
+        description=(
+            "Largest rms pump move per scan that estimated transmitter noise may cause through the "
+            "model-based tuning, as a fraction of the pump range; null = no noise limit."
+        ),
+    )
+    box_limit_fraction: float = Field(
+        0.01,
+        ge=0.0,
+        lt=0.5,
+        description=(
+            "A gain closer to a box limit than this fraction of the smaller of the box width and "
+            "the gain's natural scale (the larger of its fixed and model-based values) is on it."
+        ),
+    )
 
 
 class SupervisorConfig(Model):
@@ -690,7 +730,6 @@ class SiteConfig(Model):
         """The supervisor's (and MPC's) sample time [s]: a whole number of PLC scans."""
         assert self.plc is not None
         return self.supervisor_sample_scans * self.plc.scan_period_s
-
 
 
 # --------------------------------------------------------------------------------------------

@@ -623,6 +623,48 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
         b.var(f"{p}.Accepted", DataType.UINT32, "Gain sets pushed and accepted.")
         b.var(f"{p}.Rejected", DataType.UINT32, "Candidate gain sets rejected by a guard or the PLC.")
         b.var(f"{p}.LastReason", DataType.STRING, "Why the last candidate was rejected (empty if accepted).")
+        b.var(
+            f"{p}.Excitation",
+            DataType.DOUBLE,
+            "Smallest eigenvalue of the remembered data's information matrix (dimensionless): how well "
+            "the weakest gain direction is measured.",
+            unit="1",
+            eu_range=(0.0, 1e12),
+        )
+        b.var(
+            f"{p}.ConditionNumber",
+            DataType.DOUBLE,
+            "Condition number of the estimator's information matrix (prior + data).",
+            unit="1",
+            eu_range=(1.0, 1e16),
+            initial=1.0,
+        )
+        b.var(
+            f"{p}.BoxDistance",
+            DataType.DOUBLE_ARRAY,
+            "Distance of each estimated gain [Kp, Ki, Kd] to the nearest gain-box limit, as a fraction "
+            "of the box width (0 on a limit, 0.5 in the middle).",
+            unit="1",
+            eu_range=(0.0, 0.5),
+        )
+        b.var(
+            f"{p}.OnBoxLimit",
+            DataType.BOOLEAN,
+            "Diagnostic: the estimate or the applied gains sit on a gain-box limit (the box, not the "
+            "data, decides that gain).",
+        )
+        b.var(
+            f"{p}.Prior",
+            DataType.DOUBLE_ARRAY,
+            "Model-based (SIMC) gains [Kp, Ki, Kd] the estimate is regularised toward.",
+        )
+        b.var(
+            f"{p}.NoiseStd",
+            DataType.DOUBLE,
+            "Estimated level-transmitter noise of the loop's PV [m] (from the model's prediction errors).",
+            unit="m",
+            eu_range=(0.0, 1.0),
+        )
     b.var(
         "Supervisor.Estimator.Disturbance",
         DataType.DOUBLE_ARRAY,

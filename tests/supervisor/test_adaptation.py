@@ -1,4 +1,12 @@
-"""Tests of supervisor.adaptation: gain fitting, closed-loop matrix, and every admissibility guard."""
+"""Tests of supervisor.adaptation: gain fitting, closed-loop matrix, and every admissibility guard.
+
+The fitting and proposal tests here pin the former estimator (``LEGACY``: exponentially
+forgetting RLS from the fixed gains, straight line in gain space, Kd free, no noise limit): its
+properties (exact recovery of a teacher, one-sided projections, the guards) stay tested and the
+option stays available. The default estimator (prior at the model-based tuning, directional
+forgetting) is tested in ``test_adaptation_prior.py`` and judged by outcome in
+``test_adaptation_outcome.py``.
+"""
 
 from __future__ import annotations
 
@@ -58,6 +66,20 @@ def three_tank_model() -> LoopModel:
 
 
 MODEL = three_tank_model()
+
+
+def Legacy(**kwargs: Any) -> AdaptationConfig:
+    """The former estimator and proposer (module doc), with ``kwargs`` on top."""
+    base: dict[str, Any] = {
+        "estimator": "rls",
+        "path": "linear",
+        "kd_keep_sign": False,
+        "noise_move_budget": None,
+    }
+    return AdaptationConfig(**{**base, **kwargs})
+
+
+LEGACY = Legacy()
 # The paper's fixed gains (digest 2.1): PID I on h1 / pump 1, PID II on h2 / pump 2.
 PAPER = PidGains.diagonal([4.29e-4, 10.83e-4], [5.32e-6, 3.94e-5], [-1.42e-4, -13.51e-4])
 
@@ -127,7 +149,7 @@ def rel_err(est: PidGains, true: PidGains) -> float:
 # --------------------------------------------------------------------------- gain recovery
 def test_recovers_known_diagonal_pid_gains_from_velocity_form_data() -> None:
     teacher = PidGains.diagonal([5.0e-4, 9.0e-4], [6.0e-6, 3.5e-5], [-1.2e-4, -12.0e-4])
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     statuses = [adapter.observe(**r) for r in teacher_readings(teacher, 1200)]
     assert statuses[:2] == [SampleStatus.WARMUP, SampleStatus.WARMUP]
     assert set(statuses[2:]) == {SampleStatus.FORMED}
@@ -151,7 +173,7 @@ def test_recovers_known_full_mimo_pid_gains() -> None:
         np.array([[6.0e-6, 1.0e-7], [2.0e-7, 3.5e-5]]),
         np.array([[-1.2e-4, 3.0e-6], [-4.0e-6, -12.0e-4]]),
     )
-    adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(full_mimo=True))
+    adapter = PidGainAdapter(MODEL, PAPER, Legacy(full_mimo=True))
     for r in teacher_readings(teacher, 1200, seed=3):
         adapter.observe(**r)
     assert rel_err(adapter.estimate(), teacher) < 1e-6
@@ -307,17 +329,17 @@ def _nan_candidate() -> PidGains:
 
 GUARD_CASES: list[tuple[RejectReason, AdaptationConfig, PidGains, float | None]] = [
     # (reason, config, candidate, setpoint step for the horizon state; None: equilibrium)
-    (RejectReason.NON_FINITE, AdaptationConfig(), _nan_candidate(), None),
+    (RejectReason.NON_FINITE, Legacy(), _nan_candidate(), None),
     # Kp1 + 21 %: inside the 25 % rate limit, above the box's 5e-4.
-    (RejectReason.OUTSIDE_BOX, AdaptationConfig(box=TIGHT_BOX), scaled(PAPER, 0, 0, kp=1.21), None),
+    (RejectReason.OUTSIDE_BOX, Legacy(box=TIGHT_BOX), scaled(PAPER, 0, 0, kp=1.21), None),
     # Ki1 - 20 %: inside the rate limit and the default box, below Ki_min = 4.5e-6.
-    (RejectReason.SIGN, AdaptationConfig(ki_min=(4.5e-6, 3e-5)), scaled(PAPER, 0, 0, ki=0.8), None),
+    (RejectReason.SIGN, Legacy(ki_min=(4.5e-6, 3e-5)), scaled(PAPER, 0, 0, ki=0.8), None),
     # Kp2 + 40 %: inside the default box (10 x), stable, beyond the 25 % rate limit.
-    (RejectReason.RATE_LIMIT, AdaptationConfig(), scaled(PAPER, 1, 1, kp=1.4), None),
+    (RejectReason.RATE_LIMIT, Legacy(), scaled(PAPER, 1, 1, kp=1.4), None),
     # Kp 100 x everywhere: destabilising; box and rate limit opened so only stability speaks.
     (
         RejectReason.UNSTABLE,
-        AdaptationConfig(box=WIDE_BOX, max_change_fraction=1e3),
+        Legacy(box=WIDE_BOX, max_change_fraction=1e3),
         PidGains(100 * PAPER.kp, PAPER.ki, PAPER.kd),
         None,
     ),
@@ -325,7 +347,7 @@ GUARD_CASES: list[tuple[RejectReason, AdaptationConfig, PidGains, float | None]]
     # the next scans drives pump 1 to 1.44e-4 > Qmax (the applied gains peak at 1.0e-4).
     (
         RejectReason.INPUT_BOUNDS,
-        AdaptationConfig(max_change_fraction=10.0),
+        Legacy(max_change_fraction=10.0),
         scaled(PAPER, 0, 0, kd=3.0),
         0.15,
     ),
@@ -372,7 +394,7 @@ def test_input_bound_guard_exempts_only_the_side_the_mpc_is_pinned_at(
     # the linear simulation (Qmax 1.2e-4; the applied gains peak at 1.0e-4). When the MPC itself
     # sits at Qmax in that scan, the PID is being taught to saturate there: not counted. Pinned
     # at zero or inside its range, the excursion above Qmax still counts.
-    adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(max_change_fraction=10.0))
+    adapter = PidGainAdapter(MODEL, PAPER, Legacy(max_change_fraction=10.0))
     u = None if u_mpc_1 is None else [u_mpc_1, MODEL.u_op[1]]
     setpoint_step_readings(adapter, 0.15, u_mpc=u)
     decision = adapter.evaluate(scaled(PAPER, 0, 0, kd=3.0))
@@ -397,7 +419,7 @@ def test_input_bound_violation_allowances_are_per_side_and_per_input() -> None:
 
 
 def test_admissible_candidate_is_accepted_and_becomes_applied() -> None:
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     equilibrium_readings(adapter)
     candidate = scaled(scaled(PAPER, 0, 0, kp=1.2, ki=1.1, kd=0.9), 1, 1, kp=0.85, ki=1.2)
     decision = adapter.submit(candidate, t_s=1.0)
@@ -411,7 +433,7 @@ def test_admissible_candidate_is_accepted_and_becomes_applied() -> None:
 
 def test_input_guard_compares_with_the_applied_gains_when_those_already_saturate() -> None:
     # A 0.3 m step: even the applied gains drive pump 1 beyond Qmax on the linear model.
-    adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(max_change_fraction=10.0))
+    adapter = PidGainAdapter(MODEL, PAPER, Legacy(max_change_fraction=10.0))
     setpoint_step_readings(adapter, 0.3)
     same = adapter.evaluate(PAPER)
     assert same.accepted and same.input_violation > 0.0
@@ -423,7 +445,7 @@ def test_input_guard_compares_with_the_applied_gains_when_those_already_saturate
 
 def test_rate_limit_has_an_absolute_floor_for_gains_near_zero() -> None:
     # A cross gain at 0 may move by the floor: 0.25 * 0.1 * (largest Kp of that pump's row).
-    adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(full_mimo=True))
+    adapter = PidGainAdapter(MODEL, PAPER, Legacy(full_mimo=True))
     equilibrium_readings(adapter)
     floor = 0.25 * 0.1 * 4.29e-4
     ok = PAPER.stacked().copy()
@@ -435,7 +457,7 @@ def test_rate_limit_has_an_absolute_floor_for_gains_near_zero() -> None:
 
 
 def test_diagonal_mode_pins_cross_gains_with_the_default_box() -> None:
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     equilibrium_readings(adapter)
     g = PAPER.stacked().copy()
     g[0, 0, 1] = 1e-9
@@ -443,7 +465,7 @@ def test_diagonal_mode_pins_cross_gains_with_the_default_box() -> None:
 
 
 def test_negative_own_kp_is_a_sign_violation() -> None:
-    cfg = AdaptationConfig(box=WIDE_BOX, max_change_fraction=1e3)
+    cfg = Legacy(box=WIDE_BOX, max_change_fraction=1e3)
     adapter = PidGainAdapter(MODEL, PAPER, cfg)
     equilibrium_readings(adapter)
     decision = adapter.evaluate(scaled(PAPER, 1, 1, kp=-0.01))
@@ -454,7 +476,7 @@ def test_negative_own_kp_is_a_sign_violation() -> None:
 # --------------------------------------------------------------------------- proposing
 def test_no_push_before_enough_samples_or_before_min_time() -> None:
     teacher = scaled(PAPER, 0, 0, kp=1.1)
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     readings = list(teacher_readings(teacher, 40))
     # Two warm-up scans, then 2 formed samples: the first sets the excitation reference,
     # so each pump has 1 update < 3 parameters.
@@ -477,7 +499,7 @@ def test_no_push_before_enough_samples_or_before_min_time() -> None:
 def test_proposals_move_toward_the_teacher_within_the_rate_limit_and_converge() -> None:
     teacher = scaled(scaled(PAPER, 0, 0, kp=1.6, ki=1.3, kd=0.8), 1, 1, kp=0.7, ki=1.2, kd=1.1)
     assert rho(teacher) < 0.995
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     decisions = []
     for r in teacher_readings(teacher, 1200, seed=5):
         adapter.observe(**r)
@@ -500,7 +522,7 @@ def test_each_proposal_moves_along_the_straight_line_to_the_estimate() -> None:
     # Per pump, candidate - applied = alpha (estimate - applied) with 0 < alpha <= 1, and when
     # alpha < 1 the gain that binds sits exactly at its rate limit (the others inside theirs).
     teacher = scaled(scaled(PAPER, 0, 0, kp=1.6, ki=1.3, kd=0.8), 1, 1, kp=0.7, ki=1.2, kd=1.1)
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     floor = 0.25 * 0.1 * np.abs(PAPER.stacked())  # the default floor (diagonal fixed gains)
     alphas = []
     for r in teacher_readings(teacher, 300, seed=5):
@@ -532,7 +554,7 @@ def test_rejected_proposals_keep_the_applied_gains_admissible() -> None:
     # candidates follow the estimate; once it gets close to the teacher they must be refused.
     teacher = scaled(PAPER, 0, 0, kp=3.0)
     assert rho(teacher) == pytest.approx(0.99591, abs=1e-5)
-    adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(max_change_fraction=10.0))
+    adapter = PidGainAdapter(MODEL, PAPER, Legacy(max_change_fraction=10.0))
     decisions = []
     for r in teacher_readings(teacher, 600, seed=2):
         adapter.observe(**r)
@@ -560,7 +582,7 @@ def test_rejected_proposals_keep_the_applied_gains_admissible() -> None:
 # --------------------------------------------------------------------------- data hygiene
 def test_gap_in_scan_counter_drops_the_samples_spanning_it() -> None:
     teacher = PidGains.diagonal([5.0e-4, 9.0e-4], [6.0e-6, 3.5e-5], [-1.2e-4, -12.0e-4])
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     readings = list(teacher_readings(teacher, 1200, seed=9))
     statuses = {}
     for r in readings:
@@ -580,7 +602,7 @@ def test_gap_in_scan_counter_drops_the_samples_spanning_it() -> None:
 
 
 def test_invalid_and_duplicate_readings() -> None:
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     equilibrium_readings(adapter, n=3)
     kw = {"sp": H_OP[:2], "mv": MODEL.u_op, "u_mpc": MODEL.u_op}
     assert adapter.observe(scan=2, t_s=2.0, pv=H_OP[:2], **kw) is SampleStatus.DUPLICATE
@@ -598,7 +620,7 @@ def test_constant_error_history_means_no_adaptation() -> None:
     # Constant offsets: De = D2e = 0 and Ts e constant, so the regressor never moves. The MPC's
     # input wanders all the while (a nonzero target), which must not be learned from.
     rng = np.random.default_rng(1)
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     e = np.array([0.01, -0.005])
     for k in range(300):
         u_mpc = MODEL.u_op + 5e-6 * rng.standard_normal(2)
@@ -626,7 +648,7 @@ def test_samples_with_the_mpc_at_a_bound_are_inequalities_not_equalities() -> No
     assert min(n_sat) > 100
     fits = {}
     for mode in ("one_sided", "drop", "equality"):
-        adapter = PidGainAdapter(MODEL, PAPER, AdaptationConfig(saturated=mode))
+        adapter = PidGainAdapter(MODEL, PAPER, Legacy(saturated=mode))
         for r in readings:
             adapter.observe(**r)
         fits[mode] = adapter
@@ -669,8 +691,8 @@ ENERGIES_BOX = GainBox(
 
 def test_a_pinned_mpc_teaches_a_pid_that_falls_short_of_it() -> None:
     readings = list(fill_readings(20))
-    dropped = PidGainAdapter(MODEL, PAPER, AdaptationConfig(box=ENERGIES_BOX, saturated="drop"))
-    taught = PidGainAdapter(MODEL, PAPER, AdaptationConfig(box=ENERGIES_BOX))
+    dropped = PidGainAdapter(MODEL, PAPER, Legacy(box=ENERGIES_BOX, saturated="drop"))
+    taught = PidGainAdapter(MODEL, PAPER, Legacy(box=ENERGIES_BOX))
     for r in readings:
         dropped.observe(**r)
         taught.observe(**r)
@@ -696,7 +718,7 @@ def test_a_pinned_mpc_teaches_a_pid_that_falls_short_of_it() -> None:
 
 def test_non_finite_mpc_input_skips_only_that_pump() -> None:
     teacher = PidGains.diagonal([5.0e-4, 9.0e-4], [6.0e-6, 3.5e-5], [-1.2e-4, -12.0e-4])
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     for r in teacher_readings(teacher, 50, seed=4):
         if r["scan"] == 20:
             r["u_mpc"] = np.array([math.nan, r["u_mpc"][1]])
@@ -713,30 +735,30 @@ ONES = PidGains(np.ones((2, 2)), np.ones((2, 2)), np.ones((2, 2)))
 
 def test_adapter_and_config_validation() -> None:
     with pytest.raises(ValueError, match="max_spectral_radius"):
-        AdaptationConfig(max_spectral_radius=1.01)
+        Legacy(max_spectral_radius=1.01)
     with pytest.raises(ValueError, match="push_period_s"):
-        AdaptationConfig(push_period_s=0.0)
+        Legacy(push_period_s=0.0)
     with pytest.raises(ValueError, match="memory_s"):
-        AdaptationConfig(memory_s=-1.0)
+        Legacy(memory_s=-1.0)
     with pytest.raises(ValueError, match="horizon_steps"):
-        AdaptationConfig(horizon_steps=0)
+        Legacy(horizon_steps=0)
     with pytest.raises(ValueError, match="saturated"):
         AdaptationConfig(saturated="skip")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="fixed gains must have shape"):
         PidGainAdapter(MODEL, PidGains.diagonal([1e-4], [1e-6], [0.0]))
     with pytest.raises(ValueError, match="inside the gain box"):
-        PidGainAdapter(MODEL, PAPER, AdaptationConfig(box=GainBox(lower=NONNEG, upper=ONES)))  # Kd < 0
+        PidGainAdapter(MODEL, PAPER, Legacy(box=GainBox(lower=NONNEG, upper=ONES)))  # Kd < 0
     with pytest.raises(ValueError, match="sign guard"):
-        PidGainAdapter(MODEL, PAPER, AdaptationConfig(ki_min=1e-5))  # PID I's Ki 5.32e-6 < 1e-5
+        PidGainAdapter(MODEL, PAPER, Legacy(ki_min=1e-5))  # PID I's Ki 5.32e-6 < 1e-5
     with pytest.raises(ValueError, match="own_loop"):
-        PidGainAdapter(MODEL, PAPER, AdaptationConfig(own_loop=(0, 2)))
+        PidGainAdapter(MODEL, PAPER, Legacy(own_loop=(0, 2)))
     with pytest.raises(ValueError, match="u_min must be < u_max"):
         LoopModel(MODEL.A, MODEL.B, MODEL.C, TS, np.full(2, QMAX), np.zeros(2))
     with pytest.raises(ValueError, match="C must have shape"):
         LoopModel(MODEL.A, MODEL.B, np.eye(2), TS, np.zeros(2), np.full(2, QMAX))
     with pytest.raises(ValueError, match="same shape"):
         PidGains(np.eye(2), np.eye(3), np.eye(2))
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     with pytest.raises(ValueError, match="sp must have shape"):
         adapter.observe(scan=0, t_s=0.0, sp=[0.4], pv=H_OP[:2], mv=MODEL.u_op, u_mpc=MODEL.u_op)
     with pytest.raises(TypeError, match="scan"):
@@ -746,7 +768,7 @@ def test_adapter_and_config_validation() -> None:
 
 
 def test_set_applied_resynchronises_the_rate_limit_reference() -> None:
-    adapter = PidGainAdapter(MODEL, PAPER)
+    adapter = PidGainAdapter(MODEL, PAPER, LEGACY)
     equilibrium_readings(adapter)
     other = scaled(PAPER, 1, 1, kp=1.2)
     adapter.set_applied(other)

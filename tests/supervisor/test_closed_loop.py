@@ -149,7 +149,7 @@ def test_energies_adaptation_pushed_only_admissible_changed_gains() -> None:
     adapter = core.adapter
     fixed = adapter.fixed
     frac = adapter.config.max_change_fraction
-    floor = frac * 0.1 * np.abs(fixed.stacked())  # the default rate-limit floor (diagonal gains)
+    floor = adapter.change_floor.stacked()  # the rate-limit floor in force (ADR 0014)
     site = run.cs.site
     assert site.plc is not None
     boxes = [lp.gain_box for lp in site.plc.loops]
@@ -229,7 +229,9 @@ def test_plc_snapshots_satisfy_the_regression_exactly_and_the_adapter_recovers_t
     # adapter fits them all (no dead zone, no forgetting, a prior as weak as the cap allows).
     core = SupervisorCore(base)
     assert core.adapter is not None
-    cfg = dataclasses.replace(core.adapter.config, excitation_threshold=0.0, memory_s=math.inf, p0=1e6)
+    cfg = dataclasses.replace(
+        core.adapter.config, excitation_threshold=0.0, memory_s=math.inf, prior_weight=1e-9
+    )
     adapter = PidGainAdapter(core.adapter.model, core.adapter.fixed, cfg)
     for s in snaps:
         adapter.observe(scan=s.scan, t_s=s.t_s, sp=s.sp_m, pv=s.pv_m, mv=s.mv, u_mpc=s.mv, x=s.levels_m)
@@ -322,9 +324,13 @@ def test_two_hours_at_a_constant_setpoint_with_level_noise_neither_inflate_nor_d
     if start == "after_the_fill":
         assert (trace_p[k0:] < 0.6 * cap).all()  # learned (measured 1350 / 1486 of 3000), and stays
         assert not np.array_equal(tr.array("gains")[k0], tr.array("gains")[0])  # the fill adapted
-    g = tr.array("gains")[k0:]
-    drift = np.abs(g - g[0]) / np.abs(g[0])
-    assert drift.max() <= 0.05, drift.max(axis=0)  # measured 0: the dead zone holds against noise
+    # From the model-based tuning on (ADR 0014: the first pushes move the printed gains to it and
+    # the fill's data correct it; 600 s is ample), the gains hold: noise adapts nothing (the dead
+    # zone) and the noise limit's hysteresis keeps its scatter out (measured: 15 % drift without).
+    k1 = int(np.searchsorted(tr.array("t_s"), t_start + 600.0)) if start == "equilibrium" else k0
+    g = tr.array("gains")[k1:]
+    drift = np.abs(g - g[0]) / np.maximum(np.abs(g[0]), 1e-12)
+    assert drift.max() <= 0.05, drift.max(axis=0)  # measured 0 (equilibrium), 0.2 % (after the fill)
     # The loops held their setpoints through it (no limit cycle, no slow wander).
     dev = np.abs(tr.array("levels_m")[k0:, :2] - tr.array("setpoints_m")[k0:])
     assert dev.max() < 2e-3  # measured 0.08 mm / 0.43 mm
