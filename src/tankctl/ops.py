@@ -10,6 +10,9 @@
     tankctl loop LIC1 auto                       PLC.LIC1.Mode = AUTO
     tankctl mode adaptive-pid|mpc|advisory|off   Supervisor.Mode
     tankctl gains LIC1 [--json]                  applied gains, GainSource, the supervisor's RLS state
+    tankctl gains LIC1 --kp K --ki K --kd K      PLC.LIC1.SetGains as an engineer (GainSource ENGINEER)
+    tankctl gains LIC1 --release                 PLC.LIC1.ReleaseGains: back under adaptation
+    tankctl gains LIC1 --reset                   PLC.LIC1.ResetGains: the configured gains again
     tankctl browse [plant|plc|supervisor] [--json]   the servers' node trees, browsed
     tankctl watch [--interval 1] [--duration S]  live trend of levels against setpoints
     tankctl scenario run FILE                    a scenario's timed events, on the plant's model time
@@ -24,8 +27,9 @@ loops and ranges exist, so names are checked before anything is sent.
 Units at the command line: levels in m, openings 0..1, flows in m^3/s, a manual output in
 percent of the ManualMV's EURange (read from the PLC itself).
 
-Exit codes: 0 done; 1 a write refused by a server (one line with the status code's name, e.g.
-``tankctl: PLC.LIC1.SP = 0.7 refused: BadOutOfRange``); 2 bad usage, an unknown name, a bad
+Exit codes: 0 done; 1 a write or a method call refused by a server (one line with the status
+code's name, e.g. ``tankctl: PLC.LIC1.SP = 0.7 refused: BadOutOfRange``,
+``tankctl: PLC.LIC1.ResetGains() refused: BadInvalidState (...)``); 2 bad usage, an unknown name, a bad
 config or scenario, or an unreachable endpoint (``tankctl: cannot reach plc at URL: REASON``).
 Nothing prints a traceback: asyncua's and tanklab's loggers are held at ERROR while these
 commands run, and every failure at the OPC UA boundary becomes one line.
@@ -95,6 +99,7 @@ from tanklab.ua_security import ClientIdentity, cli_identity, secure_client
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
+    "CallRefusedError",
     "RefusedError",
     "Stack",
     "TierClient",
@@ -140,6 +145,15 @@ class RefusedError(TanklabError):
 
     def __init__(self, path: str, shown: str, status: str) -> None:
         super().__init__(f"{path} = {shown} refused: {status}")
+        self.path = path
+        self.status = status
+
+
+class CallRefusedError(RefusedError):
+    """A server answered a method call with a Bad status code (exit 1)."""
+
+    def __init__(self, path: str, args: str, status: str, hint: str = "") -> None:
+        TanklabError.__init__(self, f"{path}({args}) refused: {status}" + (f" ({hint})" if hint else ""))
         self.path = path
         self.status = status
 
@@ -473,6 +487,25 @@ class TierClient:
         status = await self._bounded(write_value(self.node(path), tag, value))
         if not status.is_good():
             raise RefusedError(path, _show(tag, value), status.name)
+
+    async def call(self, path: str, *args: float, hints: Mapping[str, str] | None = None) -> None:
+        """Call the method ``path`` with Double arguments; a Bad status raises
+        :class:`CallRefusedError` (with ``hints[status]`` as its reason, when given)."""
+        tag = self.tags[path]
+        parent = self.node(tag.parent)
+        variants = [ua.Variant(float(a), ua.VariantType.Double) for a in args]
+
+        async def call() -> str | None:
+            try:
+                await parent.call_method(ua.NodeId(path, self.idx), *variants)
+            except ua.UaStatusCodeError as e:
+                return str(ua.StatusCode(e.code).name)
+            return None
+
+        status = await self._bounded(call())
+        if status is not None:
+            shown = ", ".join(f"{a:g}" for a in args)
+            raise CallRefusedError(path, shown, status, (hints or {}).get(status, ""))
 
     async def eu_range(self, path: str) -> tuple[float, float] | None:
         """The EURange property of a node as the server has it (None if it has none)."""
@@ -1047,8 +1080,87 @@ async def _try_connect(client: TierClient) -> TierClient | UnreachableError:
         return e
 
 
+_GAIN_HINTS = {
+    "BadUserAccessDenied": "your role may not do this",
+    "BadOutOfRange": "a gain is not finite or lies outside the loop's gain box",
+}
+_RESET_HINTS = {
+    **_GAIN_HINTS,
+    "BadInvalidState": "a mode change of the loop is pending (retry after the next scan), or its "
+    "block has no PID gains",
+}
+_SET_HINTS = {**_GAIN_HINTS, "BadInvalidState": "the loop's block has no PID gains"}
+
+
+def _change_gains(
+    stack: Stack,
+    name: str,
+    new: tuple[float | None, float | None, float | None],
+    reset: bool,
+    release: bool,
+) -> None:
+    """``tankctl gains LOOP --kp/--ki/--kd | --reset | --release``: one call, one line."""
+    if sum((reset, release, any(g is not None for g in new))) > 1:
+        raise _fail("give one of --kp/--ki/--kd, --reset and --release", 2)
+    for label, g in zip(("--kp", "--ki", "--kd"), new, strict=True):
+        if g is not None and not math.isfinite(g):
+            raise _fail(f"{label} must be a finite number, got {g}", 2)
+    tags = stack.tags("plc")
+    p = f"PLC.{name}"
+
+    async def main() -> int:
+        async with stack.client("plc") as plc:
+            paths = [f"{p}.{g}" for g in ("Kp", "Ki", "Kd", "GainSource")]
+            before = await plc.read(paths)
+            source = _show(tags[f"{p}.GainSource"], before[f"{p}.GainSource"])
+            applied = " ".join(f"{g} = {_sci(before[f'{p}.{g}'])}" for g in ("Kp", "Ki", "Kd"))
+            if reset:
+                await plc.call(f"{p}.ResetGains", hints=_RESET_HINTS)
+                typer.echo(
+                    f"{name}: ResetGains: the configured gains from the next scan on, GainSource FIXED "
+                    f"(was {source}: {applied})"
+                )
+            elif release:
+                await plc.call(f"{p}.ReleaseGains", hints=_SET_HINTS)
+                if source == "ENGINEER":
+                    typer.echo(
+                        f"{name}: ReleaseGains: back under adaptation, gains kept ({applied}), "
+                        "GainSource FIXED until the supervisor pushes"
+                    )
+                else:
+                    typer.echo(
+                        f"{name}: ReleaseGains: not held by an engineer (GainSource {source}), no change"
+                    )
+            else:
+                # An omitted gain keeps its applied value: SetGains always sends all three.
+                current = (before[f"{p}.Kp"], before[f"{p}.Ki"], before[f"{p}.Kd"])
+                kp, ki, kd = (float(c) if g is None else g for g, c in zip(new, current, strict=True))
+                await plc.call(f"{p}.SetGains", kp, ki, kd, hints=_SET_HINTS)
+                typer.echo(
+                    f"{name}: SetGains(Kp = {_sci(kp)}, Ki = {_sci(ki)}, Kd = {_sci(kd)}) from the next scan "
+                    f"on, GainSource ENGINEER (was {source}); the supervisor is kept off until "
+                    f"`tankctl gains {name} --release` or `--reset`"
+                )
+        return 0
+
+    _run(main)
+
+
 def gains(
     loop: Annotated[str, typer.Argument(help="Loop, e.g. LIC1.")],
+    kp: Annotated[
+        float | None, typer.Option("--kp", help="Set Kp (SetGains as an engineer: GainSource ENGINEER).")
+    ] = None,
+    ki: Annotated[
+        float | None, typer.Option("--ki", help="Set Ki [per s] (omitted: the applied Ki).")
+    ] = None,
+    kd: Annotated[float | None, typer.Option("--kd", help="Set Kd [s] (omitted: the applied Kd).")] = None,
+    reset: Annotated[
+        bool, typer.Option("--reset", help="ResetGains: the configured (FIXED) gains at the next scan.")
+    ] = False,
+    release: Annotated[
+        bool, typer.Option("--release", help="ReleaseGains: hand an ENGINEER loop back to adaptation.")
+    ] = False,
     as_json: JsonOpt = False,
     config: ConfigOpt = None,
     host: HostOpt = None,
@@ -1058,9 +1170,13 @@ def gains(
     supervisor_url: SupervisorUrlOpt = None,
     timeout: TimeoutOpt = DEFAULT_TIMEOUT_S,
 ) -> None:
-    """A loop's applied Kp, Ki, Kd and GainSource, and the supervisor's RLS state for it."""
+    """A loop's applied Kp, Ki, Kd and GainSource, and the supervisor's RLS state for it; with
+    --kp/--ki/--kd, --reset or --release, change them (one call, one line)."""
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
     name = _check(lambda: stack.loop(loop))
+    if reset or release or kp is not None or ki is not None or kd is not None:
+        _change_gains(stack, name, (kp, ki, kd), reset, release)
+        return
 
     async def main() -> int:
         p = f"PLC.{name}"

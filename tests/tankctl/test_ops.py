@@ -376,6 +376,59 @@ def test_gains_show_the_applied_set_and_the_rls_state(stack: Stack) -> None:
     assert human[1].startswith("supervisor (ADVISORY): RLS theta [")
 
 
+def test_gains_set_release_and_reset_one_line_each(stack: Stack) -> None:
+    plc = stack.url("plc")
+    expect(plc, "PLC.LIC2.GainSource", 0)  # FIXED: the configured 10.83e-4, 3.94e-5, -13.51e-4
+    ran = cli("gains", "LIC2", "--kp", "1e-3", "--ki", "3e-5", "--kd", "-1e-3", *base(stack))
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout) == (
+        "LIC2: SetGains(Kp = 1.000e-03, Ki = 3.000e-05, Kd = -1.000e-03) from the next scan on, "
+        "GainSource ENGINEER (was FIXED); the supervisor is kept off until `tankctl gains LIC2 "
+        "--release` or `--reset`"
+    )
+    expect(plc, "PLC.LIC2.GainSource", 3)  # ENGINEER
+    assert read(plc, "PLC.LIC2.Kp", "PLC.LIC2.Ki", "PLC.LIC2.Kd") == [1e-3, 3e-5, -1e-3]
+    # Out of the gain box: refused whole, exit 1, one line; an omitted gain is the applied one.
+    ran = cli("gains", "LIC2", "--kp", "1.0", *base(stack))
+    assert ran.code == 1 and ran.stdout == ""
+    assert one_line(ran.stderr) == (
+        "tankctl: PLC.LIC2.SetGains(1, 3e-05, -0.001) refused: BadOutOfRange "
+        "(a gain is not finite or lies outside the loop's gain box)"
+    )
+    assert read(plc, "PLC.LIC2.Kp") == [1e-3]
+    # An Observer may not reset.
+    env = {"TANKLAB_USER": "observer", "TANKLAB_PASSWORD": TEST_PASSWORDS["observer"]}
+    ran = proc("gains", "LIC2", "--reset", *base(stack), env=env)
+    assert ran.code == 1
+    assert one_line(ran.stderr) == (
+        "tankctl: PLC.LIC2.ResetGains() refused: BadUserAccessDenied (your role may not do this)"
+    )
+    # Release: the gains stay, GainSource FIXED.
+    ran = cli("gains", "LIC2", "--release", *base(stack))
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout) == (
+        "LIC2: ReleaseGains: back under adaptation, gains kept (Kp = 1.000e-03 Ki = 3.000e-05 "
+        "Kd = -1.000e-03), GainSource FIXED until the supervisor pushes"
+    )
+    expect(plc, "PLC.LIC2.GainSource", 0)
+    assert read(plc, "PLC.LIC2.Kp") == [1e-3]
+    ran = cli("gains", "LIC2", "--release", *base(stack))
+    assert one_line(ran.stdout) == "LIC2: ReleaseGains: not held by an engineer (GainSource FIXED), no change"
+    # Reset: the configured gains at the next scan.
+    ran = cli("gains", "LIC2", "--reset", *base(stack))
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout) == (
+        "LIC2: ResetGains: the configured gains from the next scan on, GainSource FIXED "
+        "(was FIXED: Kp = 1.000e-03 Ki = 3.000e-05 Kd = -1.000e-03)"
+    )
+    expect(plc, "PLC.LIC2.Kp", 10.83e-4)
+    assert read(plc, "PLC.LIC2.Ki", "PLC.LIC2.Kd", "PLC.LIC2.GainSource") == [3.94e-5, -13.51e-4, 0]
+    # Bad usage: one line, exit 2, nothing sent.
+    ran = cli("gains", "LIC2", "--reset", "--release", *base(stack))
+    assert ran.code == 2
+    assert one_line(ran.stderr) == "tankctl: give one of --kp/--ki/--kd, --reset and --release"
+
+
 def test_status_json_has_the_documented_shape(stack: Stack) -> None:
     ran = cli("status", "--json", *base(stack))
     assert ran.code == 0, ran.stderr
