@@ -3,15 +3,17 @@
 For each horizon Np the supervisor's MPC (``build_mpc`` of the Kortela site with
 ``supervisor.mpc.horizon = Np``) runs in closed loop on the nonlinear plant through
 :class:`tankctl.cosim.CoSimulation` in MPC mode, on the benchmark scenario (LIC1's setpoint
-+0.05 m at 10 s). Each time the supervisor calls ``MpcController.step(y, r, u_prev)`` the
-benchmark, in this order and within the same sample:
++0.05 m at 10 s). Each sample the supervisor calls ``MpcController.correct(y, prior)`` (the
+filter's corrector) and then ``MpcController.plan(x0, r, u_prev, eta)`` (the QP from the state the
+committed move leads to, supervisor.timing); the benchmark, in this order and within the same
+sample:
 
-1. times the call itself (``time.perf_counter`` around the whole ``step``: filter, QP update,
-   OSQP, projection, prediction, objective) and keeps OSQP's own time
+1. times the MPC step (``time.perf_counter`` around ``correct`` plus around ``plan``: filter,
+   QP update, OSQP, projection, prediction, objective) and keeps OSQP's own time
    (``MpcResult.solve_time_s``) and iteration count;
-2. gives the same (y, r, u_prev) to a second ``MpcController`` with the other QP form
-   (condensed <-> sparse): the filter sees the same data, so it solves the same QP;
-3. gives the QP that step solved (state estimate ``MpcResult.state``, disturbance
+2. gives the same (x0, r, u_prev, eta) to a second ``MpcController`` with the other QP form
+   (condensed <-> sparse): it solves the same QP;
+3. gives the QP that step solved (start state ``MpcResult.state``, disturbance
    ``MpcResult.disturbance``, r, u_prev) to the comparators of :mod:`benchmarks.comparators`:
    cvxpy + OSQP at eps 1e-4 with polish (the controller's first tolerance rung), cvxpy + OSQP
    at eps 1e-6 with polish (its last rung), cvxpy with its default solver and settings, and
@@ -21,7 +23,7 @@ So every ratio is measured on the same sequence of QPs, in one process, interlea
 sample. Interleaving costs the controller some cache warmth, so its own numbers (the goals) come
 from a first closed loop with no comparator (``run_horizon(..., comparators=[])``); the
 co-simulation is deterministic, so both loops see the same QPs. :func:`profile_steps` profiles
-the ``step`` calls of a third loop.
+the ``correct`` and ``plan`` calls of a third loop.
 """
 
 from __future__ import annotations
@@ -160,15 +162,23 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
         obj = _build(name, makers[name], series)
         if obj is not None:
             others[name] = obj
-    original = mpc.step
+    original, original_correct = mpc.plan, mpc.correct
+    correct_wall = [0.0]
 
     def du0(u: np.ndarray, ref: np.ndarray) -> float:
         return float(np.max(np.abs(np.asarray(u) - ref)) / u_range)
 
-    def timed_step(y: ArrayLike, r: ArrayLike, u_prev: ArrayLike) -> MpcResult:
+    def timed_correct(y: ArrayLike, x: ArrayLike, d: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         t0 = time.perf_counter()
-        res = original(y, r, u_prev)
-        wall = time.perf_counter() - t0
+        out = original_correct(y, x, d)
+        correct_wall[0] = time.perf_counter() - t0
+        return out
+
+    def timed_step(x: ArrayLike, r: ArrayLike, u_prev: ArrayLike, disturbance: ArrayLike) -> MpcResult:
+        t0 = time.perf_counter()
+        res = original(x, r, u_prev, disturbance)
+        wall = time.perf_counter() - t0 + correct_wall[0]
+        correct_wall[0] = 0.0
         s = series[OURS]
         s.wall_s.append(wall)
         s.solver_s.append(res.solve_time_s)
@@ -177,7 +187,7 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
         s.path[solve_path(res)] += 1
         if alt is not None:
             t0 = time.perf_counter()
-            res2 = alt.step(y, r, u_prev)
+            res2 = alt.plan(x, r, u_prev, disturbance)
             sa = series[OURS_ALT]
             sa.wall_s.append(time.perf_counter() - t0)
             sa.solver_s.append(res2.solve_time_s)
@@ -200,7 +210,8 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
             sc.du0.append(du0(rec.u0, res.u))
         return res
 
-    mpc.step = timed_step  # type: ignore[method-assign]
+    mpc.plan = timed_step  # type: ignore[method-assign]
+    mpc.correct = timed_correct  # type: ignore[method-assign]
     gc.collect()
     meter = CpuMeter()
     meter.start([])
@@ -208,7 +219,8 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
     try:
         sim.run(duration_s, _setpoint_step)
     finally:
-        mpc.step = original  # type: ignore[method-assign]
+        mpc.plan = original  # type: ignore[method-assign]
+        mpc.correct = original_correct  # type: ignore[method-assign]
     run_wall = time.perf_counter() - t0
     meter.stop([])
     for name in (CVXPY_OSQP, CVXPY_OSQP_TIGHT, CVXPY_DEFAULT):
@@ -229,22 +241,31 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
 
 
 def profile_steps(horizon: int, duration_s: float, top: int = 8) -> list[HotSpot]:
-    """cProfile of every ``MpcController.step`` call of the closed loop (nothing else profiled)."""
+    """cProfile of every ``MpcController.correct`` and ``plan`` call of the closed loop (nothing
+    else profiled)."""
     site = with_horizon(load(KORTELA), horizon)
     sim = CoSimulation(site, supervisor_mode="MPC")
     assert sim.supervisor is not None
     mpc = sim.supervisor.mpc
-    original = mpc.step
+    original, original_correct = mpc.plan, mpc.correct
     prof = cProfile.Profile()
 
-    def profiled(y: ArrayLike, r: ArrayLike, u_prev: ArrayLike) -> MpcResult:
+    def profiled(x: ArrayLike, r: ArrayLike, u_prev: ArrayLike, disturbance: ArrayLike) -> MpcResult:
         prof.enable()
         try:
-            return original(y, r, u_prev)
+            return original(x, r, u_prev, disturbance)
         finally:
             prof.disable()
 
-    mpc.step = profiled  # type: ignore[method-assign]
+    def profiled_correct(y: ArrayLike, x: ArrayLike, d: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        prof.enable()
+        try:
+            return original_correct(y, x, d)
+        finally:
+            prof.disable()
+
+    mpc.plan = profiled  # type: ignore[method-assign]
+    mpc.correct = profiled_correct  # type: ignore[method-assign]
     sim.run(duration_s, _setpoint_step)
     return hotspots(prof, top)[0]
 

@@ -408,6 +408,17 @@ class AugmentedKalmanFilter:
         self._posterior = self._prior + self._K @ innov
         return self._make_estimate(self._posterior, innov)
 
+    def correct_prior(self, prior: FloatArray, y: FloatArray) -> FloatArray:
+        """Corrector from a given prior: xi(k|k) = prior + Kf (y - Ca prior); return xi(k|k).
+
+        For a caller that predicts the prior itself (on a finer grid than the filter's sample) and
+        has checked both vectors: ``prior`` (n + n_eta,) and ``y`` (ny,) finite float arrays,
+        deviation variables. The prior and the posterior replace the filter's own.
+        """
+        post = prior + self._K @ (y - self._Ca @ prior)
+        self._prior, self._posterior = prior, post
+        return post
+
     def predict(self, u: ArrayLike) -> None:
         """Predictor step: propagate the last posterior with the applied input u(k) (m,) [deviation].
 

@@ -1606,13 +1606,34 @@ class MpcController:
         disturbance : array_like, shape (n_eta,), optional
             Disturbance held over the horizon; default zeros.
         """
-        x_ = _vector(x, self._n, "x")
-        u_prev_ = _vector(u_prev, self._m, "u_prev")
-        r_ = self._reference(r)
         if disturbance is None:
             d_ = np.zeros(self._n_eta)
+        elif (
+            type(disturbance) is np.ndarray
+            and disturbance.dtype == np.float64
+            and disturbance.shape == (self._n_eta,)
+            and np.isfinite(disturbance).all()
+        ):
+            d_ = disturbance
         else:
             d_ = _vector(disturbance, self._n_eta, "disturbance")
+        # the usual case, float vectors of the right shapes, checked for finite values in one pass
+        # (only read, never kept, as in step)
+        if (
+            type(x) is np.ndarray
+            and type(u_prev) is np.ndarray
+            and type(r) is np.ndarray
+            and x.dtype == u_prev.dtype == r.dtype == np.float64
+            and x.shape == (self._n,)
+            and u_prev.shape == (self._m,)
+            and r.shape == (self._nz,)
+            and np.isfinite(np.concatenate((x, u_prev, r))).all()
+        ):
+            x_, u_prev_, r_ = x, u_prev, r
+        else:
+            x_ = _vector(x, self._n, "x", copy=False)
+            u_prev_ = _vector(u_prev, self._m, "u_prev", copy=False)
+            r_ = self._reference(r)
         return self._solve(x_ - self._model.x_op, d_, r_, u_prev_)
 
     def correct(
@@ -1637,15 +1658,28 @@ class MpcController:
         -------
         (x, disturbance) : x(k|k) [m, absolute], shape (n,), and eta(k|k), shape (n_eta,).
         """
-        y_ = _vector(y, self._model.n_measured, "y")
-        x_ = _vector(x_prior, self._n, "x_prior")
-        d_ = _vector(disturbance_prior, self._n_eta, "disturbance_prior")
+        n = self._n
+        if (
+            type(y) is np.ndarray
+            and type(x_prior) is np.ndarray
+            and type(disturbance_prior) is np.ndarray
+            and y.dtype == x_prior.dtype == disturbance_prior.dtype == np.float64
+            and y.shape == (self._model.n_measured,)
+            and x_prior.shape == (n,)
+            and disturbance_prior.shape == (self._n_eta,)
+            and np.isfinite(np.concatenate((y, x_prior, disturbance_prior))).all()
+        ):
+            y_, x_, d_ = y, x_prior, disturbance_prior
+        else:
+            y_ = _vector(y, self._model.n_measured, "y")
+            x_ = _vector(x_prior, n, "x_prior")
+            d_ = _vector(disturbance_prior, self._n_eta, "disturbance_prior")
         y_dev = y_ - self._y_op
         if self._est_subset:
             y_dev = y_dev[self._est_rows]
-        self._estimator.reset(x_ - self._model.x_op, d_)
-        est = self._estimator.correct(y_dev)
-        return self._model.x_op + est.x, np.array(est.disturbance)
+        x_op = self._model.x_op
+        post = self._estimator.correct_prior(np.concatenate((x_ - x_op, d_)), y_dev)
+        return x_op + post[:n], post[n:]
 
     def _reference(self, r: ArrayLike) -> FloatArray:
         """r checked: (nz,) for a constant reference or (Np, nz) for a preview (both broadcast

@@ -211,3 +211,29 @@ def test_the_driver_samples_on_the_first_scan_then_every_sample_and_acknowledges
         assert driver.on_snapshot(_snapshot(site, scan, x, mv, LoopMode.AUTO)) is None  # seen
     assert sampled == [3, 8, 13]
     assert core.cycles == 3
+
+
+def test_correct_is_the_filters_corrector_from_the_given_prior() -> None:
+    core = SupervisorCore(_site(2.5, 2.5))
+    mpc = core.mpc
+    kf = mpc.estimator
+    x_op = mpc.model.x_op
+    rng = np.random.default_rng(1)
+    x_prior = x_op + 0.01 * rng.standard_normal(x_op.size)
+    eta_prior = 1e-6 * rng.standard_normal(kf.n_disturbances)
+    y = x_op + 0.01 * rng.standard_normal(x_op.size)
+    x, eta = mpc.correct(y, x_prior, eta_prior)
+    # oracle: xi(k|k) = xi(k|k-1) + Kf (y_f - Ca xi(k|k-1)) on the filtered rows, by hand
+    rows = [core.site.tank_names.index(t) for t in core.spec.mpc.filter_outputs or core.spec.mpc.controlled]
+    prior = np.concatenate([x_prior - x_op, eta_prior])
+    Ca = kf.augmented[2]
+    post = prior + kf.gain @ ((y - x_op)[rows] - Ca @ prior)
+    np.testing.assert_allclose(x, x_op + post[: x_op.size], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(eta, post[x_op.size :], rtol=0, atol=1e-18)
+    # the slow path (lists) gives the same; bad values are refused by name, nothing changed
+    x2, eta2 = mpc.correct(list(y), list(x_prior), list(eta_prior))
+    np.testing.assert_array_equal(x2, x)
+    with pytest.raises(ValueError, match="x_prior"):
+        mpc.correct(y, np.full(x_op.size, np.nan), eta_prior)
+    with pytest.raises(ValueError, match="y"):
+        mpc.correct(y[:-1], x_prior, eta_prior)
