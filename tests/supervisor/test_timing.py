@@ -233,6 +233,7 @@ def test_correct_is_the_filters_corrector_from_the_given_prior() -> None:
     # the slow path (lists) gives the same; bad values are refused by name, nothing changed
     x2, eta2 = mpc.correct(list(y), list(x_prior), list(eta_prior))
     np.testing.assert_array_equal(x2, x)
+    np.testing.assert_array_equal(eta2, eta)
     with pytest.raises(ValueError, match="x_prior"):
         mpc.correct(y, np.full(x_op.size, np.nan), eta_prior)
     with pytest.raises(ValueError, match="y"):
