@@ -57,7 +57,7 @@ from supervisor.adaptation import (
 from supervisor.mpc import MpcConfig, MpcController, MpcModel, MpcResult
 from supervisor.timing import ScanPredictor
 from tanklab.config import SiteConfig
-from tanklab.enums import LoopMode, MpcStatus, SupervisorMode
+from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
 
 FloatArray = NDArray[np.float64]
 ERROR_SCALE = {"m": 1.0, "cm": 100.0}
@@ -73,6 +73,7 @@ class PlcSnapshot:
     sp_m, pv_m : (n_loops,) setpoints and PVs [m].  mv : (n_loops,) applied MVs [pump unit].
     modes : (n_loops,) loop modes.  gains : (n_loops, 3) applied (Kp, Ki, Kd).
     levels_m : (n_tanks,) every level the PLC read [m].  good : (n_tanks,) their quality.
+    sources : (n_loops,) where the applied gains came from (empty: not read).
     """
 
     scan: int
@@ -84,6 +85,7 @@ class PlcSnapshot:
     gains: FloatArray
     levels_m: FloatArray
     good: NDArray[np.bool_]
+    sources: tuple[GainSource, ...] = ()
 
     @staticmethod
     def read_paths(loops: list[str], tanks: list[str]) -> list[str]:
@@ -107,10 +109,15 @@ class PlcSnapshot:
             gains=loop_vals[:, 4:7],
             levels_m=np.array([float(values[f"PLC.IO.LT{t[1:]}.PV"]) for t in tanks]),
             good=np.array([bool(values[f"PLC.IO.LT{t[1:]}.Good"]) for t in tanks]),
+            sources=tuple(GainSource(int(s)) for s in loop_vals[:, 7]),
         )
 
+    def engineer_held(self) -> frozenset[int]:
+        """Indices of the loops whose gains an engineer holds (GainSource ENGINEER)."""
+        return frozenset(j for j, s in enumerate(self.sources) if s is GainSource.ENGINEER)
 
-_LOOP_ITEMS = ("SP", "PV", "MV", "Mode", "Kp", "Ki", "Kd")
+
+_LOOP_ITEMS = ("SP", "PV", "MV", "Mode", "Kp", "Ki", "Kd", "GainSource")
 
 
 @dataclass
@@ -202,6 +209,7 @@ class SupervisorCore:
         self.result_scan: int | None = None  # the PLC scan of the sample whose MPC step made it
         self.push_scan = -10
         self.pushes_refused = 0
+        self.held_loops = 0  # loops left out of the last proposed push: an engineer holds them
         self.remote_since_scan: int | None = None  # MPC: first scan that shows the loops in REMOTE
         self.sheds = 0  # MPC shed to ADVISORY because a loop left REMOTE
         self.shed_reason = ""
@@ -445,9 +453,13 @@ class SupervisorCore:
             decision = self.adapter.propose(snap.t_s)
             if decision is not None and decision.accepted and decision.changed:
                 g = decision.candidate
+                held = snap.engineer_held()  # an engineer's gains stay until handed back
                 for j, name in enumerate(self.loop_names):
-                    act.gains[name] = (float(g.kp[j, j]), float(g.ki[j, j]), float(g.kd[j, j]))
-                self.push_scan = snap.scan
+                    if j not in held:
+                        act.gains[name] = (float(g.kp[j, j]), float(g.ki[j, j]), float(g.kd[j, j]))
+                self.held_loops = len(held)
+                if act.gains:
+                    self.push_scan = snap.scan
 
     def _relinearize(self, r: FloatArray) -> None:
         """Gain scheduling: re-linearize at the equilibrium holding the current references."""

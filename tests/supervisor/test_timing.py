@@ -238,3 +238,40 @@ def test_correct_is_the_filters_corrector_from_the_given_prior() -> None:
         mpc.correct(y, np.full(x_op.size, np.nan), eta_prior)
     with pytest.raises(ValueError, match="y"):
         mpc.correct(y[:-1], x_prior, eta_prior)
+
+
+def test_the_adaptation_leaves_an_engineers_loop_alone_until_it_is_released() -> None:
+    """ADAPTIVE_PID on the Energies site: an engineer's SetGains on LIC2 holds it (ENGINEER); the
+    supervisor keeps pushing LIC1 only, the PLC refuses nothing, LIC2 keeps the engineer's gains;
+    once released, the supervisor may push LIC2 again."""
+    from tankctl.cosim import CoSimulation
+    from tanklab.config import load_site
+    from tanklab.enums import GainSource
+
+    sim = CoSimulation(
+        load_site(ROOT / "configs/three_tank_energies_sim.yaml"), supervisor_mode="ADAPTIVE_PID"
+    )
+    sup = sim.supervisor
+    assert sup is not None
+    sim.run(150.0)
+    lic2 = sim.plc.loop("LIC2")
+    assert lic2.applied is not None
+    mine = (lic2.applied.kp * 0.9, lic2.applied.ki * 0.9, lic2.applied.kd * 0.9)
+    assert sim.plc.stage_gains("LIC2", *mine, source=GainSource.ENGINEER).name == "STAGED"
+    sim.run(1.0)
+    assert lic2.source is GainSource.ENGINEER
+    pushes_before, refused_before = sup.adapter.diagnostics().accepted_pushes, sup.pushes_refused  # type: ignore[union-attr]
+    sim.run(400.0)
+    assert lic2.source is GainSource.ENGINEER
+    assert lic2.applied is not None and (lic2.applied.kp, lic2.applied.ki, lic2.applied.kd) == pytest.approx(
+        mine
+    )
+    assert sup.pushes_refused == refused_before  # nothing was sent that the PLC had to refuse
+    assert sup.adapter.diagnostics().accepted_pushes > pushes_before  # type: ignore[union-attr]
+    assert sim.plc.loop("LIC1").source is GainSource.SUPERVISOR  # LIC1 went on being adapted
+    assert sup.held_loops == 1
+    assert sim.plc.release_gains("LIC2").name == "STAGED"
+    assert lic2.source is GainSource.FIXED
+    sim.run(200.0)
+    assert lic2.source is GainSource.SUPERVISOR  # handed back: adapted again
+    assert sup.held_loops == 0
