@@ -29,6 +29,21 @@ The RLS runs on dimensionless parameters so one set of defaults fits every unit 
 
 so that ``x_hat' theta_hat = y_hat`` exactly.
 
+The estimator (``estimator="prior"``, the default; ADR 0014, docs/adaptation.md 2.10) is
+:class:`~supervisor.prior_rls.PriorRls`: least squares with a persistent prior at the model-based
+tuning and directional forgetting::
+
+    theta_i = argmin  sum_s w(s) (y_hat(s) - x_hat(s)' theta)^2 + (theta - theta_p)' L0 (theta - theta_p)
+    L0      = diag(prior_weight / sigma^2),  sigma = max(|theta_p|, |theta_fixed|, floors)
+
+so its information matrix is never below ``L0`` (bounded condition number) and where the data say
+nothing the estimate is the prior. The prior ``theta_p`` is the SIMC PI of each own tank's
+first-order model (:func:`model_based_gains`)::
+
+    Kp = tau / (K (tau_c + Ts / 2)),   Ki = Kp / min(tau, 4 (tau_c + Ts / 2)),   Kd = 0
+
+``estimator="rls"`` keeps the former :class:`~tanklab.rls.ExpForgettingRls` from the fixed gains.
+
 When ``u_MPC,i`` sits at a bound of its input range (within ``saturation_band``), the sample is
 an inequality, not an equality: the clamped MPC wants *at least* ``u_MPC,i`` (at ``u_min``: at
 most), so the PID's move must satisfy ``psi_i' theta_i >= y_i`` (``<= y_i`` at ``u_min``). With
@@ -39,16 +54,25 @@ inequality bounds the parameters without measuring them. Dropping these samples 
 former default) starves the fit while the MPC fills a tank at Qmax; fitting them as equalities
 (``"equality"``) drags the gains toward the clamped move (digest 2.4's collapse).
 
+With the prior estimator a violated inequality is absorbed as an equality sample instead (it is
+weighed against the prior; a projection would override it).
+
+Transmitter noise is estimated per loop from the model's differenced one-step prediction errors
+(:meth:`PidGainAdapter.noise_std`); it limits each pump's loop gain to
+``Kp <= noise_move_budget U / (sqrt(2) sigma)`` (the whole own-loop target is scaled) and raises
+the dead zone to ``17 sigma / E``.
+
 A candidate gain set (all pumps) is proposed every push period: each ready pump moves from its
-applied gains along the straight line toward its estimate, as far as the rate limit lets every one
-of its gains go. It is returned for pushing only when it passes every admissibility guard
-(:class:`RejectReason`), which replace the paper's vacuous "u inside the input set" condition:
-finite; inside the gain box; signs (own loop ``Kp >= 0``, ``Ki >= Ki_min > 0``); rate limit per
-push; closed-loop spectral radius of the ZOH model with the candidate PID below
-``max_spectral_radius``; and the unclamped input of the linear closed loop, simulated from the
-current state, inside ``[u_min, u_max]`` (excursions beyond a bound the MPC is pinned at in that
-scan are the teacher's own saturation and are not counted). The closed-loop matrix is derived in
-:func:`closed_loop_matrix`.
+applied gains toward its estimate along one path (``path="geometric"``: the straight line in log
+space for gains that keep their sign, ``g = a (target / a)^alpha``; ``"linear"``: in gain space),
+as far as the rate limit lets every one of its gains go. It is returned for pushing only when it
+passes every admissibility guard (:class:`RejectReason`), which replace the paper's vacuous "u
+inside the input set" condition: finite; inside the gain box; signs (own loop ``Kp >= 0``, ``Ki >=
+Ki_min > 0``); rate limit per push; closed-loop spectral radius of the ZOH model with the
+candidate PID below ``max_spectral_radius``; and the unclamped input of the linear closed loop,
+simulated from the current state, inside ``[u_min, u_max]`` (excursions beyond a bound the MPC is
+pinned at in that scan are the teacher's own saturation and are not counted). The closed-loop
+matrix is derived in :func:`closed_loop_matrix`.
 
 This module is pure: model time ``t_s`` [s] and the PLC scan counter are arguments; no clock, no
 I/O, no logging.
@@ -402,6 +426,12 @@ class AdaptationConfig:
     kd_keep_sign : bool, default True
         The estimate's own-loop Kd stays between 0 and the fixed Kd (it may shrink to 0, never
         change sign: the model-based tuning has Kd = 0).
+    noise_move_budget : float or None, default 0.0035
+        Largest rms pump move per scan, as a fraction of the pump's range, that the estimated
+        transmitter noise may cause through the loop gain (``sqrt(2) Kp sigma``): each pump's
+        own-loop target is scaled down to ``Kp <= budget U / (sqrt(2) sigma)``, with 20 %
+        hysteresis. None: no limit. Sized so that 0.5 mm of noise on the Energies plant moves the
+        pumps at most 3x as much as the paper's fixed PID (measured 2.4x).
     box_limit_fraction : float, default 0.01
         A gain closer to a box limit than this fraction of the smaller of the box width and the
         gain's natural scale (the larger of its fixed and model-based values) is reported on the
