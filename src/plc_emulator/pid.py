@@ -539,8 +539,9 @@ class Pid:
     Notes
     -----
     Verbs: `step` once per scan (or `step_siso` on a one-loop block); `set_mode`,
-    `set_manual_mv`, `set_remote_mv`, `set_gains` and `track` between scans (they take effect at
-    the next step). A one-loop block computes on floats (the module's "single-loop fast path").
+    `set_manual_mv`, `set_remote_mv`, `set_gains`, `set_setpoint_weights` and `track` between
+    scans (they take effect at the next step, bumplessly). A one-loop block computes on floats
+    (the module's "single-loop fast path").
     """
 
     def __init__(self, config: PidConfig, gains: PidGains) -> None:
