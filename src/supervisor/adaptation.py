@@ -1097,7 +1097,8 @@ class PidGainAdapter:
         self._natural = np.maximum(np.abs(prior_g), np.abs(g_fixed))
         self._noise_lambda = ExpForgettingRls.forgetting_from_memory(ts, _NOISE_MEMORY_FACTOR * cfg.memory_s)
         self._kp_noise: list[float | None] = [None] * m
-        self._noise_acc = np.zeros(nl)
+        self._noise_acc = np.zeros(nl)  # sum of lambda^age d^2 / 6
+        self._noise_weight = 0.0  # sum of lambda^age (the same weights: no start-up bias)
         self._noise_n = 0
         self._eps_prev: FloatArray | None = None
         self._history: list[_Reading] = []
@@ -1319,6 +1320,7 @@ class PidGainAdapter:
         if not (np.isfinite(sp_v).all() and np.isfinite(pv_v).all() and np.isfinite(mv_v).all()):
             self._history.clear()
             self._after_gap = True
+            self._eps_prev = None
             self._counters.invalid += 1
             return SampleStatus.INVALID
 
@@ -1326,6 +1328,7 @@ class PidGainAdapter:
         if self._history and scan != self._history[-1].scan + 1:
             self._history.clear()
             self._after_gap = True
+            self._eps_prev = None
         self._history.append(reading)
         if len(self._history) > 3:
             del self._history[0]
@@ -1400,14 +1403,15 @@ class PidGainAdapter:
         lam = self._noise_lambda
         if self._noise_n >= 10:
             d2 = np.minimum(d2, 25.0 * self.noise_std() ** 2)
-        self._noise_acc = lam * self._noise_acc + (1.0 - lam) * d2
+        self._noise_acc = lam * self._noise_acc + d2
+        self._noise_weight = lam * self._noise_weight + 1.0
         self._noise_n += 1
 
     def noise_std(self) -> FloatArray:
         """Estimated transmitter noise per loop [error unit], shape (n_loops,); 0 before data."""
         if self._noise_n == 0:
             return np.zeros(self._model.n_loops)
-        return np.sqrt(self._noise_acc / (1.0 - self._noise_lambda**self._noise_n))
+        return np.sqrt(self._noise_acc / self._noise_weight)
 
     def _update_noise_limit(self) -> None:
         """From the noise estimate: each pump's loop-gain limit (with hysteresis) and dead zone.
