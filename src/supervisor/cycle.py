@@ -210,6 +210,8 @@ class SupervisorCore:
         self.push_scan = -10
         self.pushes_refused = 0
         self.held_loops = 0  # loops left out of the last proposed push: an engineer holds them
+        self._rls_cache: dict[str, Any] | None = None  # the adapter's nodes, until it changes
+        self._rejected_pushes = 0
         self.remote_since_scan: int | None = None  # MPC: first scan that shows the loops in REMOTE
         self.sheds = 0  # MPC shed to ADVISORY because a loop left REMOTE
         self.shed_reason = ""
@@ -301,6 +303,12 @@ class SupervisorCore:
         mode = SupervisorMode(mode)
         if mode is SupervisorMode.ADAPTIVE_PID and self.adapter is None:
             raise ValueError("ADAPTIVE_PID needs every loop to be a PID loop with fixed gains")
+        if mode is SupervisorMode.ADAPTIVE_PID and self.sample_scans != 1:
+            # the adapter pairs each scan's PID move with the MPC's move of the same scan
+            raise ValueError(
+                "ADAPTIVE_PID needs the supervisor to sample every PLC scan "
+                f"(supervisor.sample_time_s is {self.sample_scans} scans)"
+            )
         self.requested = mode
 
     def push_refused(self) -> None:
@@ -395,6 +403,7 @@ class SupervisorCore:
             self.remote_since_scan = snap.scan + 1  # the first scan that can show them in REMOTE
         if self.requested is SupervisorMode.ADAPTIVE_PID and self.adapter is not None:
             self.adapter.set_applied(self._applied(snap))
+            self._rls_cache = None
         self.mode = self.requested
 
     def _applied(self, snap: PlcSnapshot) -> PidGains:
@@ -440,6 +449,7 @@ class SupervisorCore:
             applied = self._applied(snap)
             if not applied.allclose(self.adapter.applied, rtol=1e-9):
                 self.adapter.set_applied(applied)
+        self._rls_cache = None  # the adapter learns (and may propose) now
         self.adapter.observe(
             scan=snap.scan,
             t_s=snap.t_s,
@@ -494,21 +504,34 @@ class SupervisorCore:
         else:
             v["Supervisor.MPC.Status"] = int(MpcStatus.NOT_RUN)
         if self.adapter is not None:
-            d = self.adapter.diagnostics()
-            reason = d.last_reject_reason.value if d.last_reject_reason else ""
-            noise = self.adapter.noise_std()
-            scale = [ERROR_SCALE[lp.error_unit] for lp in self.loops]
-            for j, name in enumerate(self.loop_names):
-                p = f"Supervisor.RLS.{name}"
-                pump = d.pumps[j]
-                v[f"{p}.Theta"] = [float(x) for x in pump.theta]
-                v[f"{p}.CovarianceTrace"] = (
-                    float(pump.covariance_trace) if math.isfinite(pump.covariance_trace) else 0.0
-                )
-                v[f"{p}.Accepted"] = d.accepted_pushes
-                v[f"{p}.Rejected"] = d.rejected_pushes + self.pushes_refused
-                v[f"{p}.LastReason"] = reason
-                v.update(_health_values(p, pump, float(noise[j]) / scale[j]))
+            if self._rls_cache is None:
+                self._rls_cache = self._rls_values()
+            v.update(self._rls_cache)
+            rejected = self._rejected_pushes + self.pushes_refused
+            for name in self.loop_names:
+                v[f"Supervisor.RLS.{name}.Rejected"] = rejected
+        return v
+
+    def _rls_values(self) -> dict[str, Any]:
+        """The adapter's nodes (diagnostics and health: eigenvalues and box distances, so computed
+        only after the adapter changed, not every cycle: in MPC mode it never does)."""
+        assert self.adapter is not None
+        v: dict[str, Any] = {}
+        d = self.adapter.diagnostics()
+        self._rejected_pushes = d.rejected_pushes
+        reason = d.last_reject_reason.value if d.last_reject_reason else ""
+        noise = self.adapter.noise_std()
+        scale = [ERROR_SCALE[lp.error_unit] for lp in self.loops]
+        for j, name in enumerate(self.loop_names):
+            p = f"Supervisor.RLS.{name}"
+            pump = d.pumps[j]
+            v[f"{p}.Theta"] = [float(x) for x in pump.theta]
+            v[f"{p}.CovarianceTrace"] = (
+                float(pump.covariance_trace) if math.isfinite(pump.covariance_trace) else 0.0
+            )
+            v[f"{p}.Accepted"] = d.accepted_pushes
+            v[f"{p}.LastReason"] = reason
+            v.update(_health_values(p, pump, float(noise[j]) / scale[j]))
         return v
 
 

@@ -674,6 +674,11 @@ class SiteConfig(Model):
                         f"supervisor.sample_time_s {ts:g} s must be a whole multiple of plc.scan_period_s "
                         f"{self.plc.scan_period_s:g} s"
                     )
+                if self.supervisor.mode == "ADAPTIVE_PID" and round(ratio) != 1:
+                    raise ValueError(
+                        "supervisor.mode ADAPTIVE_PID needs supervisor.sample_time_s equal to "
+                        "plc.scan_period_s (the adapter pairs every scan's PID move with the MPC's)"
+                    )
         return self
 
     def _check_interlock(self, il: InterlockSpec) -> None:

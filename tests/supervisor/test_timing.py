@@ -275,3 +275,11 @@ def test_the_adaptation_leaves_an_engineers_loop_alone_until_it_is_released() ->
     sim.run(200.0)
     assert lic2.source is GainSource.SUPERVISOR  # handed back: adapted again
     assert sup.held_loops == 0
+
+
+def test_adaptive_pid_is_refused_when_the_supervisor_samples_slower_than_the_plc() -> None:
+    core = SupervisorCore(_site(0.5, 2.5))
+    with pytest.raises(ValueError, match="sample every PLC scan"):
+        core.request_mode(SupervisorMode.ADAPTIVE_PID)
+    assert core.requested is not SupervisorMode.ADAPTIVE_PID
+    SupervisorCore(_site(2.5, 2.5)).request_mode(SupervisorMode.ADAPTIVE_PID)  # every scan: fine

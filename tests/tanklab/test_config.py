@@ -64,6 +64,11 @@ def _energies() -> dict:
             "(top level)",
             "supervisor.sample_time_s 2.5 s must be a whole multiple of plc.scan_period_s 1 s",
         ),
+        (
+            lambda d: d["supervisor"].update(sample_time_s=2.0, mode="ADAPTIVE_PID"),
+            "(top level)",
+            "supervisor.mode ADAPTIVE_PID needs supervisor.sample_time_s equal to plc.scan_period_s",
+        ),
         # The cadence is a time now, not a count of scans.
         (lambda d: d["supervisor"].update(cycle_scans=2), "supervisor.cycle_scans", "xtra"),
     ],
