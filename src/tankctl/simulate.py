@@ -1016,11 +1016,12 @@ def regenerate_docs(doc: str | Path, *, root: str | Path = ".") -> list[str]:
     Blocks: ``<!-- generated:scenario FILE -->`` (markdown_report of the scenario, and its figure
     written to ``docs/figures/<name>.png``), ``<!-- generated:tf imc -->`` (the transfer-function
     experiment), ``<!-- generated:mrac-sweep FILE -->`` (the gamma sweep),
-    ``<!-- generated:kortela-notes FILE -->`` (the OPC UA MPC paper's findings as sentences) and
+    ``<!-- generated:kortela-notes FILE -->`` and ``<!-- generated:energies-notes FILE -->`` (the
+    OPC UA MPC and MPC-based PID papers' findings as sentences) and
     ``<!-- generated:ratios all -->`` (the settling ratios of every scenario run above it), each
     closed by ``<!-- /generated -->``. Paths are relative to ``root``; a scenario runs once.
     """
-    from tankctl.doc_notes import kortela_notes, ratio_notes
+    from tankctl.doc_notes import energies_notes, kortela_notes, ratio_notes
 
     base = Path(root)
     doc_path = base / doc
@@ -1048,6 +1049,8 @@ def regenerate_docs(doc: str | Path, *, root: str | Path = ".") -> list[str]:
             body = mrac_sweep_markdown(base / arg)
         elif kind == "kortela-notes":
             body = kortela_notes(run(arg))
+        elif kind == "energies-notes":
+            body = energies_notes(run(arg))
         elif kind == "ratios":
             body = ratio_notes({r.scenario.name: r for r in runs.values()})
         else:
