@@ -186,7 +186,13 @@ async def run_plc(
             # Publish the scan's values before the field I/O: in lock-step the supervisor reads
             # and acts on them while the plant integrates (its acknowledgement may then arrive
             # before Advance returns), instead of after; nothing below changes them.
-            await server.publish({**out.values, "PLC.Status.Overruns": deadlines.overruns})
+            await server.publish(
+                {
+                    **out.values,
+                    "PLC.Status.Overruns": deadlines.overruns,
+                    **field_link.link.status("PLC.Status.PlantLink"),
+                }
+            )
             if lockstep:
                 result = await field_link.advance(ts, out.commands)
                 if result is not None:

@@ -76,10 +76,14 @@ async def run_supervisor(
     trace_file = trace.open("w", encoding="utf-8") if trace is not None else None
     last_progress = clock.now()
     connected = False
+    link_published: dict[str, object] = {}
     try:
         while not stop.is_set():
             snap = await link.snapshot()
             now = clock.now()
+            if (link_status := link.link.status("Supervisor.PlcLink")) != link_published:
+                await server.publish(link_status)
+                link_published = link_status
             if snap is None:
                 if connected:
                     log.warning("PLC lost; will read the applied gains back after reconnecting")

@@ -30,7 +30,11 @@ percent of the ManualMV's EURange (read from the PLC itself).
 Exit codes: 0 done; 1 a write or a method call refused by a server (one line with the status
 code's name, e.g. ``tankctl: PLC.LIC1.SP = 0.7 refused: BadOutOfRange``,
 ``tankctl: PLC.LIC1.ResetGains() refused: BadInvalidState (...)``); 2 bad usage, an unknown name, a bad
-config or scenario, or an unreachable endpoint (``tankctl: cannot reach plc at URL: REASON``).
+config or scenario, an unreachable endpoint (``tankctl: cannot reach plc at URL: REASON``), or a
+refused login (``tankctl: login as 'alice' refused: wrong user name or password, or the account is
+locked (plc at URL)``; never reported as unreachable). The login is ``TANKLAB_USER`` +
+``TANKLAB_PASSWORD``, else the security home's credentials file; only one of the two variables
+set is an error before anything connects (:func:`tanklab.ua_security.cli_identity`).
 Nothing prints a traceback: asyncua's and tanklab's loggers are held at ERROR while these
 commands run, and every failure at the OPC UA boundary becomes one line.
 
@@ -100,6 +104,7 @@ from tanklab.ua_security import ClientIdentity, cli_identity, secure_client
 __all__ = [
     "DEFAULT_TIMEOUT_S",
     "CallRefusedError",
+    "LoginRefusedError",
     "RefusedError",
     "Stack",
     "TierClient",
@@ -138,6 +143,31 @@ class UnreachableError(TanklabError):
         self.tier = tier
         self.url = url
         self.reason = reason
+
+
+class LoginRefusedError(TanklabError):
+    """A tier refused the session's login (exit 2): wrong password, unknown user, a locked
+    account, or an identity the server does not take. Never reported as unreachable: the tier
+    answered, it said no."""
+
+    def __init__(self, user: str | None, tier: str, url: str, status: str) -> None:
+        who = f"login as {user!r}" if user is not None else "login"
+        if status == "BadUserAccessDenied":
+            why = "wrong user name or password, or the account is locked"
+        else:  # BadIdentityTokenRejected, BadIdentityTokenInvalid
+            why = f"the {tier} does not accept this identity ({status})"
+        super().__init__(f"{who} refused: {why} ({tier} at {url})")
+        self.user = user
+        self.tier = tier
+        self.url = url
+        self.status = status
+
+
+LOGIN_REFUSALS = frozenset({"BadUserAccessDenied", "BadIdentityTokenRejected", "BadIdentityTokenInvalid"})
+"""What a server answers a refused ActivateSession with (asyncua raises them as
+``UaStatusCodeError`` subclasses from ``Client.connect``): tanklab's user manager answers
+BadUserAccessDenied to a wrong password, an unknown name and a locked account alike (so that
+a refusal tells an attacker nothing), BadIdentityTokenRejected to an anonymous session."""
 
 
 class RefusedError(TanklabError):
@@ -429,10 +459,12 @@ class TierClient:
             raise
         except ua.UaStatusCodeError as e:
             await _quiet_disconnect(client)
-            creds = self.identity.credentials
-            who = f"login as {creds.username!r}" if creds is not None else "login"
-            reason = f"{who} refused: {ua.StatusCode(e.code).name}"
-            raise UnreachableError(self.tier, self.url, reason) from None
+            status = ua.StatusCode(e.code).name
+            if status in LOGIN_REFUSALS:
+                creds = self.identity.credentials
+                user = creds.username if creds is not None else None
+                raise LoginRefusedError(user, self.tier, self.url, status) from None
+            raise UnreachableError(self.tier, self.url, status) from None
         except Exception as e:
             await _quiet_disconnect(client)
             raise UnreachableError(self.tier, self.url, _describe(e, self.timeout_s)) from None

@@ -221,6 +221,39 @@ def _enum_range(enum: type[IntEnum]) -> tuple[float, float]:
     return (float(min(values)), float(max(values)))
 
 
+LINK_STATUS_ITEMS = ("Attempts", "Connects", "LastError", "RetryDelay")
+"""Diagnostics of a tier's link to the tier below (:class:`tanklab.ua.Link`), one node each."""
+
+
+def link_status_paths(prefix: str) -> dict[str, str]:
+    """Path of each :data:`LINK_STATUS_ITEMS` node under ``prefix`` (``PLC.Status.PlantLink``)."""
+    return {item: f"{prefix}.{item}" for item in LINK_STATUS_ITEMS}
+
+
+def _link_status(b: _Builder, prefix: str, peer: str) -> None:
+    paths = link_status_paths(prefix)
+    b.var(
+        paths["Attempts"],
+        DataType.UINT32,
+        f"Failed connection attempts to the {peer} since the link was last up (0 while up).",
+    )
+    b.var(paths["Connects"], DataType.UINT32, f"Successful connections to the {peer} since start.")
+    b.var(
+        paths["LastError"],
+        DataType.STRING,
+        f"Why the last connection attempt or request to the {peer} failed: exception class and "
+        "message (empty until the first failure; kept after a recovery).",
+    )
+    b.var(
+        paths["RetryDelay"],
+        DataType.DOUBLE,
+        "Wait before the next connection attempt after the last failure: capped exponential "
+        "backoff with jitter (0 while up) [s].",
+        unit="s",
+        eu_range=(0.0, 60.0),
+    )
+
+
 def plant_tags(site: SiteConfig) -> list[Tag]:
     """Nodes of the plant simulator for ``site``."""
     b = _Builder("plant")
@@ -503,6 +536,7 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
     )
     b.var("PLC.Status.Overruns", DataType.UINT32, "Scans whose work ran past the next deadline.")
     b.var("PLC.Status.IoHealthy", DataType.BOOLEAN, "True while the field link to the plant works.")
+    _link_status(b, "PLC.Status.PlantLink", "plant")
     b.var(
         "PLC.Status.ModelTime",
         DataType.DOUBLE,
@@ -576,6 +610,7 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
     )
     b.var("Supervisor.Cycle", DataType.UINT32, "Supervisor cycles run.")
     b.var("Supervisor.PlcConnected", DataType.BOOLEAN, "True while the PLC link is up and fresh.")
+    _link_status(b, "Supervisor.PlcLink", "PLC")
     b.var(
         "Supervisor.MPC.SolveTime",
         DataType.DOUBLE,

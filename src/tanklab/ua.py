@@ -28,7 +28,10 @@ Who is asking
 
 Client side
     :func:`resolve` looks the namespace index of ``urn:tanklab`` up and returns the nodes of the
-    given paths; :func:`read_values` reads many values in one Read.
+    given paths; :func:`read_values` reads many values in one Read. :class:`Link` is the tiers'
+    client of the tier below: bounded requests, reconnection with capped exponential backoff and
+    jitter (:func:`backoff_delay`, a pure function of the attempt number and a random source),
+    one warning line per failed attempt, and its attempts and last error for status nodes.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import contextlib
 import contextvars
 import logging
 import math
+import random
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -48,8 +52,9 @@ from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.address_space import AttributeService
 
 from tanklab.audit import AuditLog
+from tanklab.clock import Clock, MonotonicClock
 from tanklab.errors import LinkError
-from tanklab.tags import NAMESPACE_URI, DataType, Role, Tag
+from tanklab.tags import NAMESPACE_URI, DataType, Role, Tag, link_status_paths
 
 log = logging.getLogger(__name__)
 
@@ -521,6 +526,67 @@ ClientSetup = Callable[[Client], Awaitable[None]]
 SESSION_TIMEOUT_MS = 30_000
 """Session timeout a link asks for [ms]: a dead client's session is dropped within 30 s."""
 
+BACKOFF_BASE_S = 0.2
+"""Retry delay after a link's first failed connection attempt, before jitter [s]."""
+BACKOFF_FACTOR = 2.0
+"""Growth of the retry delay per further consecutive failure."""
+BACKOFF_CAP_S = 5.0
+"""Largest retry delay, before jitter [s]: a tier that comes back is found within 5 s."""
+BACKOFF_JITTER = 0.5
+"""Fraction of the delay that is random ("equal jitter": half fixed, half uniform)."""
+
+
+def backoff_delay(
+    attempt: int,
+    rng: random.Random,
+    *,
+    base_s: float = BACKOFF_BASE_S,
+    factor: float = BACKOFF_FACTOR,
+    cap_s: float = BACKOFF_CAP_S,
+    jitter: float = BACKOFF_JITTER,
+) -> float:
+    """Wait before the next connection attempt after ``attempt + 1`` consecutive failures [s].
+
+    Capped exponential backoff with equal jitter::
+
+        d_k = min(cap_s, base_s * factor**k)
+        delay = d_k * (1 - jitter * u),    u = rng.random() in [0, 1)
+
+    so ``delay`` lies in ``(d_k * (1 - jitter), d_k]``. With the defaults (0.2 s, x2, 5 s, 0.5)
+    the first retries come after 0.1-0.2 s, 0.2-0.4 s, 0.4-0.8 s, ..., then 2.5-5 s for ever.
+    Equal rather than full jitter (``jitter = 1``): a full-jitter delay can be ~0, and a link
+    that retries at once against a tier that is still starting only adds to its load; half of
+    the delay random is enough to spread the links of many clients that lost the same server.
+
+    Parameters
+    ----------
+    attempt : k >= 0, consecutive failures so far minus one.
+    rng : the source of ``u`` (a seeded ``random.Random`` in tests).
+    base_s, factor, cap_s : d_0 [s] > 0, growth >= 1, cap [s] >= base_s.
+    jitter : 0 (none) .. 1 (full jitter).
+    """
+    if attempt < 0:
+        raise ValueError(f"attempt must be >= 0, got {attempt}")
+    if not (base_s > 0 and math.isfinite(base_s) and factor >= 1 and math.isfinite(factor)):
+        raise ValueError(f"need base_s > 0 and factor >= 1, got {base_s}, {factor}")
+    if not (cap_s >= base_s and math.isfinite(cap_s)):
+        raise ValueError(f"cap_s must be >= base_s and finite, got {cap_s}")
+    if not 0 <= jitter <= 1:
+        raise ValueError(f"jitter must be in [0, 1], got {jitter}")
+    # factor**k overflows a float near k = 1024: past the cap, the cap it is.
+    if factor > 1 and attempt > math.log(cap_s / base_s) / math.log(factor):
+        d = cap_s
+    else:
+        d = min(cap_s, base_s * factor**attempt)
+    return d * (1.0 - jitter * rng.random())
+
+
+def describe_error(e: BaseException) -> str:
+    """``Class: message`` of an exception (just the class when the message is empty: a
+    TimeoutError says nothing else)."""
+    text = str(e).strip()
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
 
 class Link:
     """An OPC UA client link to the tier below that never crashes its owner.
@@ -528,9 +594,21 @@ class Link:
     Each new client is prepared by ``setup`` (the secure channel and the identity). Every
     request is bounded by ``timeout_s``; any failure marks the link unhealthy, drops the
     connection and raises :class:`~tanklab.errors.LinkError` once. :meth:`ensure` reconnects
-    with exponential backoff (0.5 s doubling to ``max_backoff_s`` of wall time) and resolves the
-    nodes again, so the owner calls it every cycle and carries on with its last good values
-    while the tier below is away.
+    when an attempt is due and resolves the nodes again, so the owner calls it every cycle and
+    carries on with its last good values while the tier below is away.
+
+    Retries follow :func:`backoff_delay` on the injected ``clock`` (``now()`` only: the link
+    never sleeps, an attempt is simply not made before it is due): after the k-th consecutive
+    failure the next attempt waits ``backoff_delay(k - 1, rng)``; a lost connection is retried
+    at once (the first attempt), a successful connection resets the count. Every failed attempt
+    is one log line at ``failure_level`` (WARNING) naming the link, the attempt number, the
+    endpoint, the exception's class and message, and the retry delay.
+
+    Diagnostics (:meth:`status`, published by the tiers on ``<prefix>.Attempts`` etc., see
+    :func:`tanklab.tags.link_status_paths`): ``attempts`` failed connection attempts since the
+    link was last up (consecutive failures; 0 while up), ``connects`` successful connections,
+    ``last_error`` why the last attempt or request failed (kept after a recovery),
+    ``retry_delay_s`` the wait scheduled after the last failure.
     """
 
     def __init__(
@@ -541,29 +619,48 @@ class Link:
         name: str,
         setup: ClientSetup,
         timeout_s: float = 2.0,
-        max_backoff_s: float = 5.0,
+        clock: Clock | None = None,
+        rng: random.Random | None = None,
+        backoff: Callable[[int, random.Random], float] = backoff_delay,
+        failure_level: int = logging.WARNING,
     ) -> None:
         self.url = url
         self.setup = setup
         self.tags = tags
         self.name = name
         self.timeout_s = timeout_s
-        self.max_backoff_s = max_backoff_s
+        self.clock: Clock = clock or MonotonicClock()
+        self.rng = rng or random.Random()
+        self.backoff = backoff
+        self.failure_level = failure_level
         self.client: Client | None = None
         self.nodes: dict[str, Node] = {}
         self.idx: int | None = None
         self.healthy = False
         self.failures = 0
+        """Requests (read, write, call) that failed and dropped the link."""
         self.connects = 0
-        self._backoff_s = 0.5
-        self._next_attempt = 0.0
+        self.attempts = 0
+        """Connection attempts that failed since the link was last up (0 while up)."""
+        self.last_error = ""
+        self.retry_delay_s = 0.0
+        self._next_attempt = -math.inf
+
+    def status(self, prefix: str) -> dict[str, Any]:
+        """The link's diagnostics as tag values under ``prefix`` (e.g. ``PLC.Status.PlantLink``)."""
+        paths = link_status_paths(prefix)
+        return {
+            paths["Attempts"]: self.attempts,
+            paths["Connects"]: self.connects,
+            paths["LastError"]: self.last_error,
+            paths["RetryDelay"]: self.retry_delay_s,
+        }
 
     async def ensure(self) -> bool:
         """Connect if not connected and an attempt is due; return whether the link is up."""
         if self.healthy:
             return True
-        loop = asyncio.get_running_loop()
-        if loop.time() < self._next_attempt:
+        if self.clock.now() < self._next_attempt:
             return False
         client = Client(self.url, timeout=self.timeout_s)
         client.session_timeout = SESSION_TIMEOUT_MS
@@ -572,30 +669,50 @@ class Link:
             await asyncio.wait_for(client.connect(), self.timeout_s)
             self.idx = await asyncio.wait_for(namespace_index(client), self.timeout_s)
         except Exception as e:
-            self._next_attempt = loop.time() + self._backoff_s
-            self._backoff_s = min(2 * self._backoff_s, self.max_backoff_s)
-            log.debug("%s link: connect to %s failed: %s", self.name, self.url, e)
-            await _quiet_disconnect(client)
+            # asyncua unwinds a failed connect itself; what a timeout cut short is the socket.
+            # (A full disconnect of a client that never connected logs its own warning.)
+            with contextlib.suppress(Exception):
+                client.disconnect_socket()
+            self._attempt_failed(e)
             return False
         self.client = client
         self.nodes = {p: client.get_node(ua.NodeId(p, self.idx)) for p in self.tags}
         self.healthy = True
         self.connects += 1
-        self._backoff_s = 0.5
-        log.info("%s link: connected to %s", self.name, self.url)
+        after = f" after {self.attempts} failed attempts" if self.attempts else ""
+        self.attempts = 0
+        self.retry_delay_s = 0.0
+        log.info("%s link: connected to %s%s", self.name, self.url, after)
         return True
+
+    def _attempt_failed(self, e: BaseException) -> None:
+        self.attempts += 1
+        self.last_error = describe_error(e)
+        self.retry_delay_s = self.backoff(self.attempts - 1, self.rng)
+        self._next_attempt = self.clock.now() + self.retry_delay_s
+        log.log(
+            self.failure_level,
+            "%s link: connection attempt %d to %s failed: %s; next attempt in %.2f s",
+            self.name,
+            self.attempts,
+            self.url,
+            self.last_error,
+            self.retry_delay_s,
+        )
 
     async def _fail(self, what: str, e: BaseException) -> LinkError:
         self.failures += 1
+        reason = describe_error(e)
+        self.last_error = f"{what}: {reason}"
         if self.healthy:
-            log.warning("%s link: %s failed (%s); reconnecting", self.name, what, e or type(e).__name__)
+            log.warning("%s link: %s on %s failed (%s); reconnecting", self.name, what, self.url, reason)
         self.healthy = False
         client, self.client = self.client, None
         if client is not None:
             await _quiet_disconnect(client)
-        loop = asyncio.get_running_loop()
-        self._next_attempt = loop.time() + self._backoff_s
-        return LinkError(f"{self.name} link to {self.url}: {what} failed: {e or type(e).__name__}")
+        # The first reconnection attempt is due at once: most losses are one timed-out request.
+        self._next_attempt = -math.inf
+        return LinkError(f"{self.name} link to {self.url}: {what} failed: {reason}")
 
     async def read(self, paths: Sequence[str]) -> list[ua.DataValue]:
         """Read the values of ``paths`` in one Read; DataValues with their status codes."""

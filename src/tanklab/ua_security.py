@@ -76,7 +76,7 @@ from tanklab.ua import (
     build_nodes,
     install_write_guard,
 )
-from tanklab.users import Credentials, Lockout, UsersFile, load_credentials
+from tanklab.users import ENV_PASSWORD, ENV_USER, Credentials, Lockout, UsersFile, load_credentials
 
 log = logging.getLogger(__name__)
 
@@ -617,9 +617,26 @@ def cli_identity(
 ) -> ClientIdentity:
     """Who the CLI (operator commands, the board) connects as: the ``cli`` certificate of
     ``home`` (default: ``TANKLAB_HOME``, else ``~/.config/tanklab``) and the login from
-    ``TANKLAB_USER`` and ``TANKLAB_PASSWORD`` or the home's 0600 credentials file."""
+    ``TANKLAB_USER`` and ``TANKLAB_PASSWORD`` or the home's 0600 credentials file.
+
+    Raises
+    ------
+    SecurityError
+        Only one of ``TANKLAB_USER`` and ``TANKLAB_PASSWORD`` is set (non-empty): a user name
+        without its password is an error before connecting, never a login as the file's user.
+    """
     env = os.environ if environ is None else environ
     home = home or SecurityHome(default_home(env))
+    # Half a login in the environment must not fall back to the file's user: the session and the
+    # audit trail would then be someone else's than the operator asked for.
+    user, password = env.get(ENV_USER), env.get(ENV_PASSWORD)
+    if bool(user) != bool(password):
+        given, missing = (ENV_USER, ENV_PASSWORD) if user else (ENV_PASSWORD, ENV_USER)
+        named = f" ({user!r})" if user else ""
+        raise SecurityError(
+            f"{given} is set{named} but {missing} is not: set both, or neither to log in as "
+            f"the user of {home.credentials_file}"
+        )
     return ClientIdentity(home, "cli", load_credentials(home.credentials_file, env))
 
 

@@ -307,7 +307,8 @@ def test_a_refused_login_is_one_line_and_exit_2(stack: Stack) -> None:
     ran = proc("setpoint", "LIC1", "0.42", *base(stack), env=env)
     assert ran.code == 2
     assert one_line(ran.stderr) == (
-        f"tankctl: cannot reach plc at {stack.url('plc')}: login as 'nobody' refused: BadUserAccessDenied"
+        "tankctl: login as 'nobody' refused: wrong user name or password, or the account is locked "
+        f"(plc at {stack.url('plc')})"
     )
 
 
