@@ -1,11 +1,12 @@
-"""The PLC's link to the plant, seen on its status nodes while the plant goes away and comes back.
+"""The tiers' links, seen on their status nodes while the tier below goes away and comes back.
 
 A real plant and a real PLC (processes, speed 5). The plant is stopped under the running PLC:
 ``PLC.Status.PlantLink.Attempts`` counts the failed connection attempts and ``.LastError`` names
 the cause (the refused TCP connection); ``PLC.Status.IoHealthy`` is False. The plant is started
 again on the same port (same state file): the link recovers by itself, ``Attempts`` is back to
 0, ``Connects`` counts the second connection, and level readings flow again (good quality,
-read in scans after the recovery). Waits are bounded (``wait_until``); assertions are on node
+read in scans after the recovery). The same for the supervisor's link to a PLC stopped and
+restarted under it (``Supervisor.PlcLink.*``, ``Supervisor.PlcConnected``). Waits are bounded (``wait_until``); assertions are on node
 values, not on how long anything took.
 """
 
@@ -142,3 +143,46 @@ async def test_plant_stopped_and_restarted_under_the_plc_shows_on_its_link_nodes
     finally:
         await plc_proc.stop()
         await plant.stop()
+
+
+async def test_plc_stopped_and_restarted_under_the_supervisor_shows_on_its_link_nodes() -> None:
+    base = free_base_port()
+    plc_url = f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc"
+    nowhere = f"opc.tcp://127.0.0.1:{base}/tanklab/plant"  # no plant: the PLC scans with bad I/O
+    plc_cmd = ("plc", "--config", CONFIG, "--speed", SPEED, "--port", str(base + 1), "--plant-url", nowhere)
+    plc = await TierProcess(*plc_cmd).start()
+    sup = await TierProcess(
+        "supervisor", "--config", CONFIG, "--speed", SPEED, "--port", str(base + 2), "--plc-url", plc_url
+    ).start()
+    link = link_status_paths("Supervisor.PlcLink")
+    paths = [*link.values(), "Supervisor.PlcConnected"]
+    try:
+        client = await secure(f"opc.tcp://127.0.0.1:{base + 2}/tanklab/supervisor")
+        async with client:
+            nodes = await resolve(client, paths)
+
+            async def read() -> dict[str, Any]:
+                return dict(zip(paths, await client.read_values([nodes[p] for p in paths]), strict=True))
+
+            async def connected(n: int) -> bool:
+                v = await read()
+                return v[link["Connects"]] == n and v[link["Attempts"]] == 0 and v["Supervisor.PlcConnected"]
+
+            await wait_until(lambda: connected(1), 30, what="the supervisor's PLC link up")
+            await plc.stop()
+
+            async def failing() -> bool:
+                return (await read())[link["Attempts"]] >= 2
+
+            await wait_until(failing, 60, what="two failed attempts counted")
+            down = await read()
+            assert not down["Supervisor.PlcConnected"]
+            assert down[link["LastError"]].startswith("ConnectionRefusedError: ")
+            assert 0 < down[link["RetryDelay"]] <= 5.0
+
+            plc = await TierProcess(*plc_cmd).start()
+            await wait_until(lambda: connected(2), 60, what="the supervisor's PLC link recovered")
+            assert (await read())[link["RetryDelay"]] == 0.0
+    finally:
+        await sup.stop()
+        await plc.stop()
