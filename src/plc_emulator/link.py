@@ -44,7 +44,9 @@ class FieldLink:
         self.lt_paths = [f"Plant.LT{t[1:]}.PV" for t in site.tank_names]
         self.cmd_paths = [f"Plant.{p}.Command" for p in site.pump_names]
         needed = {p: tags[p] for p in self.lt_paths + self.cmd_paths + ["Plant.Sim.Advance"]}
-        self.link = Link(url, needed, name="field", setup=setup, timeout_s=timeout_s)
+        self.link = Link(
+            url, needed, name="field", setup=setup, timeout_s=timeout_s, failure_level=logging.WARNING
+        )
 
     @property
     def healthy(self) -> bool:

@@ -37,7 +37,12 @@ class PlcLink:
         writes = ["PLC.Supervisor.Heartbeat"]
         writes += [f"PLC.{lp}.{item}" for lp in self.loops for item in ("RemoteMV", "Mode", "SetGains")]
         self.link = Link(
-            url, {p: tags[p] for p in self.read_paths + writes}, name="plc", setup=setup, timeout_s=timeout_s
+            url,
+            {p: tags[p] for p in self.read_paths + writes},
+            name="plc",
+            setup=setup,
+            timeout_s=timeout_s,
+            failure_level=logging.WARNING,
         )
 
     @property

@@ -601,8 +601,11 @@ class Link:
     never sleeps, an attempt is simply not made before it is due): after the k-th consecutive
     failure the next attempt waits ``backoff_delay(k - 1, rng)``; a lost connection is retried
     at once (the first attempt), a successful connection resets the count. Every failed attempt
-    is one log line at ``failure_level`` (WARNING) naming the link, the attempt number, the
-    endpoint, the exception's class and message, and the retry delay.
+    is one log line at ``failure_level`` naming the link, the attempt number, the endpoint, the
+    exception's class and message, and the retry delay: the tiers' links (``PlcLink``,
+    ``FieldLink``) pass WARNING; the default INFO keeps a command-line client's probes (``tankctl
+    up`` waiting for a tier it is starting, its board) out of an unconfigured terminal, where
+    Python prints warnings by itself.
 
     Diagnostics (:meth:`status`, published by the tiers on ``<prefix>.Attempts`` etc., see
     :func:`tanklab.tags.link_status_paths`): ``attempts`` failed connection attempts since the
@@ -622,7 +625,7 @@ class Link:
         clock: Clock | None = None,
         rng: random.Random | None = None,
         backoff: Callable[[int, random.Random], float] = backoff_delay,
-        failure_level: int = logging.WARNING,
+        failure_level: int = logging.INFO,
     ) -> None:
         self.url = url
         self.setup = setup

@@ -19,6 +19,8 @@ from hypothesis import strategies as st
 
 from helpers import ROOT, free_port, identity, server_security, wait_until
 from plant_sim.runtime import run_plant
+from plc_emulator.link import FieldLink
+from supervisor.link import PlcLink
 from tanklab.clock import VirtualClock
 from tanklab.config import load_site
 from tanklab.errors import LinkError
@@ -141,6 +143,7 @@ def _link(url: str, clock: VirtualClock, u: float = 0.5) -> Link:
         timeout_s=4.0,
         clock=clock,
         rng=FixedRandom(u),
+        failure_level=logging.WARNING,  # as the tiers' links
     )
 
 
@@ -197,11 +200,22 @@ async def test_a_failing_setup_is_reported_with_its_class_and_message(
         setup=setup,
         clock=clock,
     )
-    caplog.set_level(logging.WARNING, logger="tanklab.ua")
+    caplog.set_level(logging.INFO, logger="tanklab.ua")
     assert not await link.ensure()
     assert link.last_error == "PermissionError: pki/private/plc.pem: Permission denied"
-    assert "PermissionError: pki/private/plc.pem: Permission denied" in caplog.records[0].getMessage()
-    assert "opc.tcp://127.0.0.1:1/x" in caplog.records[0].getMessage()
+    (record,) = caplog.records
+    assert "PermissionError: pki/private/plc.pem: Permission denied" in record.getMessage()
+    assert "opc.tcp://127.0.0.1:1/x" in record.getMessage()
+    assert record.levelno == logging.INFO  # a plain Link (a CLI probe) reports at INFO
+
+
+def test_the_tiers_links_report_failed_attempts_as_warnings() -> None:
+    async def setup(client: object) -> None:
+        return None
+
+    field = FieldLink(SITE, "opc.tcp://127.0.0.1:1/tanklab/plant", setup=setup)
+    plc = PlcLink(SITE, "opc.tcp://127.0.0.1:1/tanklab/plc", setup=setup)
+    assert field.link.failure_level == plc.link.failure_level == logging.WARNING
 
 
 async def test_a_recovered_link_resets_its_backoff_and_a_lost_one_retries_at_once() -> None:
