@@ -6,8 +6,8 @@ the cause (the refused TCP connection); ``PLC.Status.IoHealthy`` is False. The p
 again on the same port (same state file): the link recovers by itself, ``Attempts`` is back to
 0, ``Connects`` counts the second connection, and level readings flow again (good quality,
 read in scans after the recovery). The same for the supervisor's link to a PLC stopped and
-restarted under it (``Supervisor.PlcLink.*``, ``Supervisor.PlcConnected``). Waits are bounded (``wait_until``); assertions are on node
-values, not on how long anything took.
+restarted under it (``Supervisor.PlcLink.*``, ``Supervisor.PlcConnected``). Waits are bounded
+(``wait_until``); assertions are on node values, not on how long anything took.
 """
 
 from __future__ import annotations
