@@ -430,14 +430,29 @@ def up(
     ] = Path("var"),
     host: Annotated[str, typer.Option(help="Address the tiers bind and are reached at.")] = "127.0.0.1",
     home: HomeOpt = None,
+    fresh: Annotated[
+        bool,
+        typer.Option(
+            help="Start from the config's initial state: discard the plant's saved state and the "
+            "PLC's retentive memory."
+        ),
+    ] = False,
 ) -> None:
     """Start plant, PLC and supervisor as child processes and show a live board.
 
-    On first use it creates the PKI and an engineer account whose random password goes to the
-    home's 0600 credentials file, which the operator commands read by default."""
-    from tankctl.up import Stack, run_stack
-    from tanklab.home import SecurityHome, default_home, provision
+    Before starting anything it checks that every port is free, that no stack runs from the
+    same log directory and that the PKI is complete; on first use it creates the PKI and an
+    engineer account whose random password goes to the home's 0600 credentials file, which the
+    operator commands read by default. Piped output (or --no-board) gives one line per event.
+    SIGINT/SIGTERM stop every tier within 10 s, at any moment, and ``up`` says what was saved."""
+    import inspect
 
+    from tankctl.up import PreflightError, Stack, StopSignals, run_stack, run_up
+    from tanklab.home import SecurityHome, default_home
+
+    # From here on a signal stops `up` through its one stop path, never halfway through a step.
+    signals = StopSignals()
+    signals.install()
     path = resolve_config(config)
     site = load(path)
     if site.plc is None:
@@ -447,18 +462,6 @@ def up(
     if not 1 <= base_port <= 65533:
         raise fail(f"--base-port must be 1..65533, got {base_port}")
     spd = resolve_speed(speed)
-    sec_home = SecurityHome(home or default_home())
-    try:
-        created = provision(sec_home, hosts=sorted({"localhost", "127.0.0.1", host, socket.gethostname()}))
-    except (OSError, TanklabError) as e:
-        raise fail(f"{sec_home.root}: cannot set up the PKI and users: {e}") from None
-    if created is not None:
-        typer.echo(
-            f"first run: created the PKI in {sec_home.pki.root} and user 'engineer' (role Engineer); "
-            f"its password is in {sec_home.credentials_file} (0600)"
-        )
-    # The board is an OPC UA client; its reconnect chatter must not scroll over the board.
-    logging.getLogger("asyncua").setLevel(logging.CRITICAL)
     stack = Stack(
         site,
         path,
@@ -467,23 +470,38 @@ def up(
         "lockstep" if clock == "lockstep" else "realtime",
         log_dir / site.name,
         host=host,
-        home=sec_home,
+        home=SecurityHome(home or default_home()),
+        plc_retain_option="retain_file" in inspect.signature(plc).parameters,
     )
-    result: list[int] = []
+    try:
+        notes = stack.preflight(sorted({"localhost", "127.0.0.1", host, socket.gethostname()}))
+    except PreflightError as e:
+        raise fail(str(e)) from None
+    for line in notes:
+        typer.echo(line)
+    stack.claim()
+    if fresh:
+        typer.echo(stack.discard_saved())
+    # The board is an OPC UA client; its reconnect chatter (and that of the start-up probes)
+    # must not scroll over the board or the event lines.
+    logging.getLogger("asyncua").setLevel(logging.CRITICAL)
+    logging.getLogger("tanklab.ua").setLevel(logging.ERROR)
 
-    async def main(stop: asyncio.Event) -> None:
-        result.append(
-            await run_stack(
-                stack,
-                board=board,
-                stop=stop,
-                restart=site.stack.restart,
-                max_restarts=site.stack.max_restarts,
-            )
+    async def main(stop: asyncio.Event, cause: Any) -> int:
+        return await run_stack(
+            stack,
+            board=board,
+            stop=stop,
+            restart=site.stack.restart,
+            max_restarts=site.stack.max_restarts,
+            cause=cause,
         )
 
-    run_until_signal(main)
-    raise typer.Exit(result[0] if result else 1)
+    try:
+        code = run_up(main, signals)
+    finally:
+        stack.release()
+    raise typer.Exit(code)
 
 
 def main() -> None:

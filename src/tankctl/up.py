@@ -1,10 +1,25 @@
-"""``tankctl up``: the whole stack on one machine, with a live board.
+"""``tankctl up``: the whole stack on one machine, with a live board or one line per event.
 
-Starts the plant, the PLC and the supervisor as child processes (``python -m tankctl <tier>``)
-on ports N, N+1, N+2, each logging to its own file, waits until each answers an OPC UA read,
-prints the three endpoints and shows a live board (rich) until Ctrl-C or SIGTERM, which stop all
-three cleanly (supervisor first, plant last). If a tier dies, the board says so and ``up`` stops
-the others and exits 1, or restarts the tier when the site's ``stack.restart`` asks for it.
+Lifecycle, in this order (decision record 0018):
+
+1. **Preflight**, before anything is started or written: every port the stack will bind is free
+   (checked by binding it, as the tiers will), no pid file of the run's directory names a running
+   tanklab process (a stale one is replaced), the site's PKI and the CLI's login are complete
+   (created on first run as :func:`tanklab.home.provision` does). A failure is one line and
+   :class:`PreflightError`; nothing was started and no pid file was touched.
+2. **Start** the plant, the PLC and the supervisor bottom-up as child processes
+   (``python -m tankctl <tier>``), each in its own session (process group), logging to its own
+   file, with a pid file ``<run dir>/<tier>.pid``; each must answer an OPC UA read before the
+   next starts. SIGINT and SIGTERM are handled from before the first child starts: start-up is
+   interrupted at once.
+3. **Run** with a live board on a terminal, or one line per event when the output is piped
+   (``--no-board`` too): started, a tier died (with the last error line of its log), restarted.
+   A tier that dies stops the stack (exit 1) unless the site's ``stack.restart`` restarts it.
+4. **Stop**, the one path for a signal, a tier's death, a start-up failure and an exception:
+   SIGTERM to the PLC first (its retentive memory then still holds the running stack's modes and
+   gain sources, before it could see its supervisor or plant go), then to the supervisor and the
+   plant (which checkpoints its state); whatever still runs after ``STOP_GRACE_S`` gets SIGKILL
+   to its process group. Pid files are removed; ``up`` says what was saved and where.
 
 With ``--clock lockstep`` the plant follows the PLC's scans (``Plant.Sim.Advance``) instead of the
 wall clock and the PLC waits for the supervisor's acknowledgement of every scan: the run is
@@ -17,8 +32,10 @@ import asyncio
 import contextlib
 import os
 import signal
+import socket
 import sys
 import time
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -30,14 +47,81 @@ from rich.text import Text
 
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
-from tanklab.home import SecurityHome, default_home
+from tanklab.errors import TanklabError
+from tanklab.home import SecurityHome, default_home, provision
+from tanklab.pki import IDENTITIES
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
 from tanklab.ua import Link
-from tanklab.ua_security import cli_identity, client_setup
+from tanklab.ua_security import ClientIdentity, cli_identity, client_setup
 
 TIERS = ("plant", "plc", "supervisor")
 READY_TIMEOUT_S = 60.0
-STOP_TIMEOUT_S = 15.0
+"""How long a started tier gets to answer its first OPC UA read."""
+STOP_BOUND_S = 10.0
+"""The product's bound: every tier ``up`` started is gone this long after the stop began."""
+PLC_FIRST_S = 4.0
+"""How long the PLC alone gets to stop before the supervisor and the plant are signalled."""
+STOP_GRACE_S = 8.0
+"""From the first SIGTERM to SIGKILL; the rest of ``STOP_BOUND_S`` is for reaping the killed."""
+REAP_S = STOP_BOUND_S - STOP_GRACE_S
+
+
+class PreflightError(Exception):
+    """Why ``up`` refuses to start (one line); nothing was started and no pid file touched."""
+
+
+class StartError(Exception):
+    """A tier died or did not answer during start-up (one line, with the reason from its log)."""
+
+
+def pid_alive(pid: int) -> bool:
+    """True when a process ``pid`` exists (``kill(pid, 0)``)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def running_pid(path: Path) -> int | None:
+    """The pid in the pid file ``path`` when it names a live tanklab process, else None.
+
+    None for a missing or unreadable file, a pid that is gone, and (where ``/proc`` exists) a
+    pid now used by a process that is not ``tankctl``: such a file is stale.
+    """
+    try:
+        pid = int(path.read_text(encoding="utf-8").split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    if pid <= 0 or not pid_alive(pid):
+        return None
+    if not Path("/proc/self").exists():
+        return pid
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return pid
+    return pid if any(b"tankctl" in a for a in argv) else None
+
+
+def last_error_line(text: str, limit: int = 300) -> str:
+    """The line of a tier's log that says why it stopped.
+
+    The tier's own one-line error (``tankctl: ...``) if there is one, else the last line naming
+    an error or exception (a traceback's last line), else the last line.
+    """
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    if not lines:
+        return "nothing in its log"
+    pick = next((ln for ln in reversed(lines) if ln.startswith("tankctl:")), None)
+    if pick is None:
+        keys = ("ERROR", "CRITICAL", "Error", "Exception")
+        pick = next((ln for ln in reversed(lines) if any(k in ln for k in keys)), lines[-1])
+    return pick if len(pick) <= limit else pick[: limit - 3] + "..."
 
 
 @dataclass
@@ -47,15 +131,22 @@ class Tier:
     name: str
     args: list[str]
     url: str
+    port: int
     log_path: Path
     proc: asyncio.subprocess.Process | None = None
     restarts: int = 0
     exit_code: int | None = None
     log_file: Any = None
+    log_offset: int = 0
+    killed: bool = False
+    exited_at: float | None = None
 
     async def start(self, env: dict[str, str]) -> None:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        self.log_file = self.log_path.open("ab")
+        if self.log_file is None:
+            self.log_file = self.log_path.open("ab")
+        # The reason of a death is looked for in what this run wrote, not in older runs.
+        self.log_offset = self.log_path.stat().st_size
         self.proc = await asyncio.create_subprocess_exec(
             sys.executable,
             "-m",
@@ -64,9 +155,13 @@ class Tier:
             stdout=asyncio.subprocess.DEVNULL,
             stderr=self.log_file,
             env=env,
+            # Its own process group: Ctrl-C on the terminal reaches ``up`` only, which stops
+            # the tiers in its order, and SIGKILL can take the tier's whole group.
             start_new_session=True,
         )
         self.exit_code = None
+        self.killed = False
+        self.exited_at = None
         # The pid file lets an operator (or a test) signal exactly this tier.
         self.pid_path.write_text(f"{self.proc.pid}\n", encoding="utf-8")
 
@@ -79,22 +174,66 @@ class Tier:
     def running(self) -> bool:
         return self.proc is not None and self.proc.returncode is None
 
-    async def stop(self) -> None:
-        if self.proc is not None and self.proc.returncode is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                await asyncio.wait_for(self.proc.wait(), STOP_TIMEOUT_S)
-            except TimeoutError:
-                self.proc.kill()
-                await self.proc.wait()
+    def signal(self, sig: signal.Signals) -> None:
+        """Send ``sig`` to the tier's process group (it leads its own session)."""
+        if self.proc is None or self.proc.returncode is not None:
+            return
+        if sig == signal.SIGKILL:
+            self.killed = True
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.proc.pid, sig)
+
+    async def wait(self, timeout_s: float) -> bool:
+        """Wait at most ``timeout_s`` for the process to exit; True when it has."""
+        if self.proc is None:
+            return True
+        try:
+            await asyncio.wait_for(asyncio.shield(self.proc.wait()), max(0.0, timeout_s))
+        except TimeoutError:
+            return False
+        self.exit_code = self.proc.returncode
+        if self.exited_at is None:
+            self.exited_at = time.monotonic()
+        return True
+
+    def reason(self) -> str:
+        """Why the tier stopped: the signal that killed it, else the last error line its log got
+        since it was started."""
+        if self.exit_code is not None and self.exit_code < 0:
+            with contextlib.suppress(ValueError):
+                return f"killed by {signal.Signals(-self.exit_code).name}"
+        try:
+            with self.log_path.open("rb") as f:
+                f.seek(self.log_offset)
+                data = f.read()
+        except OSError as e:
+            return f"its log {self.log_path} is unreadable: {e.strerror or e}"
+        return last_error_line(data[-65536:].decode("utf-8", "replace"))
+
+    def release(self) -> None:
+        """After the process is gone: close the log, remove the pid file if it still is ours."""
         if self.log_file is not None:
             self.log_file.close()
             self.log_file = None
+        if self.proc is not None and running_pid(self.pid_path) in (None, self.proc.pid):
+            with contextlib.suppress(FileNotFoundError):
+                self.pid_path.unlink()
+
+
+@dataclass
+class StopReport:
+    """What a stop did: which tiers needed SIGKILL, how long it took, what was saved."""
+
+    killed: list[str]
+    seconds: float
+    lines: list[str]
+    gone_at: dict[str, float] = field(default_factory=dict)
+    """Per tier, seconds from the stop's start until its exit was seen."""
 
 
 @dataclass
 class Stack:
-    """The three tiers of a site."""
+    """The tiers of a site, their files and their lifecycle."""
 
     site: SiteConfig
     config_path: Path
@@ -104,25 +243,41 @@ class Stack:
     log_dir: Path
     host: str = "127.0.0.1"
     home: SecurityHome = field(default_factory=lambda: SecurityHome(default_home()))
+    say: Callable[[str], None] = print
+    plc_retain_option: bool = True
+    """Whether ``tankctl plc`` takes ``--retain-file`` (the run directory's retentive memory)."""
     tiers: dict[str, Tier] = field(default_factory=dict)
+    identity: ClientIdentity | None = None
 
     def __post_init__(self) -> None:
         urls = {t: f"opc.tcp://{self.host}:{self.base_port + i}/tanklab/{t}" for i, t in enumerate(TIERS)}
         common = ["--config", str(self.config_path), "--host", self.host, "--speed", f"{self.speed:g}"]
         common += ["--home", str(self.home.root)]
         lock = ["--lockstep"] if self.clock == "lockstep" else []
-        state = self.log_dir / "plant-state.json"
+        state = self.state_file
+        retain = ["--retain-file", str(self.retain_file)] if self.plc_retain_option else []
         self.tiers = {
             "plant": Tier(
                 "plant",
                 ["plant", *common, "--port", str(self.base_port), "--state-file", str(state), *lock],
                 urls["plant"],
+                self.base_port,
                 self.log_dir / "plant.log",
             ),
             "plc": Tier(
                 "plc",
-                ["plc", *common, "--port", str(self.base_port + 1), "--plant-url", urls["plant"], *lock],
+                [
+                    "plc",
+                    *common,
+                    "--port",
+                    str(self.base_port + 1),
+                    "--plant-url",
+                    urls["plant"],
+                    *retain,
+                    *lock,
+                ],
                 urls["plc"],
+                self.base_port + 1,
                 self.log_dir / "plc.log",
             ),
         }
@@ -131,8 +286,130 @@ class Stack:
                 "supervisor",
                 ["supervisor", *common, "--port", str(self.base_port + 2), "--plc-url", urls["plc"], *lock],
                 urls["supervisor"],
+                self.base_port + 2,
                 self.log_dir / "supervisor.log",
             )
+
+    # ---- files ----------------------------------------------------------------------------
+
+    @property
+    def state_file(self) -> Path:
+        """The plant's checkpoint (levels, valves, leaks, faults, volumes) of this run directory."""
+        return self.log_dir / "plant-state.json"
+
+    @property
+    def retain_file(self) -> Path | None:
+        """The PLC's retentive memory: ``plc-retain.json`` of this run directory (like the plant's
+        state file, whatever the config says), or the config's ``plc.retain_file`` (None: none)
+        when ``tankctl plc`` has no ``--retain-file``."""
+        if self.plc_retain_option:
+            return self.log_dir / "plc-retain.json"
+        name = self.site.plc.retain_file if self.site.plc is not None else None
+        return Path(name) if name else None
+
+    @property
+    def pid_path(self) -> Path:
+        """``<log dir>/up.pid`` while this ``up`` runs: one stack per run directory."""
+        return self.log_dir / "up.pid"
+
+    def pid_files(self) -> list[Path]:
+        return [self.pid_path, *(self.log_dir / f"{t}.pid" for t in TIERS)]
+
+    # ---- preflight ------------------------------------------------------------------------
+
+    def preflight(self, hosts: Sequence[str]) -> list[str]:
+        """Check ports, pid files and the PKI before anything starts; return lines to print.
+
+        Raises :class:`PreflightError` (one line) on the first problem. The PKI and the first
+        user are created when missing (first run); that is the only thing written.
+        """
+        self.check_ports()
+        self.check_pid_files()
+        return self.check_security(hosts)
+
+    def check_ports(self) -> None:
+        """Bind every port the tiers will bind, as they will (SO_REUSEADDR, like asyncio)."""
+        for tier in self.tiers.values():
+            try:
+                infos = socket.getaddrinfo(
+                    self.host, tier.port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+                )
+            except socket.gaierror as e:
+                raise PreflightError(f"--host {self.host}: {e.strerror or e}") from None
+            for family, kind, proto, _, addr in infos:
+                with socket.socket(family, kind, proto) as s:
+                    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                    try:
+                        s.bind(addr)
+                    except OSError as e:
+                        what = "is already in use" if e.errno == 98 else f"cannot be bound: {e.strerror or e}"
+                        raise PreflightError(
+                            f"port {tier.port} ({tier.name}) on {self.host} {what}; "
+                            "nothing started (another stack? --base-port picks other ports)"
+                        ) from None
+
+    def check_pid_files(self) -> None:
+        """Refuse when a pid file of the run directory names a running tanklab process."""
+        for path in self.pid_files():
+            pid = running_pid(path)
+            if pid is not None:
+                raise PreflightError(
+                    f"{path}: pid {pid} is running: a stack already runs from {self.log_dir}; "
+                    "stop it first or use another --log-dir"
+                )
+
+    def check_security(self, hosts: Sequence[str]) -> list[str]:
+        """Create the PKI and the first user when missing; require a complete PKI and a login."""
+        lines = []
+        try:
+            created = provision(self.home, hosts=hosts)
+        except (OSError, TanklabError) as e:
+            raise PreflightError(f"{self.home.root}: cannot set up the PKI and users: {e}") from None
+        if created is not None:
+            lines.append(
+                f"first run: created the PKI in {self.home.pki.root} and user 'engineer' (role Engineer); "
+                f"its password is in {self.home.credentials_file} (0600)"
+            )
+        pki = self.home.pki
+        files = [pki.ca_cert, pki.ca_key]
+        for name in IDENTITIES:
+            files += [pki.cert_path(name), pki.key_path(name)]
+        missing = [str(f.relative_to(pki.root)) for f in files if not f.is_file()]
+        if missing:
+            raise PreflightError(
+                f"{pki.root}: the PKI is incomplete: missing {', '.join(missing)} (tankctl pki init)"
+            )
+        try:
+            self.identity = cli_identity(self.home)
+        except TanklabError as e:
+            raise PreflightError(str(e)) from None
+        if self.identity.credentials is None:
+            raise PreflightError(
+                f"no login for the board: {self.home.credentials_file} is missing and "
+                "TANKLAB_USER/TANKLAB_PASSWORD are not set"
+            )
+        return lines
+
+    def claim(self) -> None:
+        """After the preflight: replace stale pid files, write ``up.pid``."""
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        for path in self.pid_files():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+        self.pid_path.write_text(f"{os.getpid()}\n", encoding="utf-8")
+
+    def discard_saved(self) -> str:
+        """``--fresh``: delete the plant's checkpoint and the PLC's retentive memory; one line."""
+        gone = []
+        for what, path in (("plant state", self.state_file), ("PLC retentive memory", self.retain_file)):
+            if path is not None and path.exists():
+                path.unlink()
+                gone.append(f"{what} {path}")
+        if not gone:
+            return "fresh start from the config's initial state (there was no saved state)"
+        return f"fresh start from the config's initial state: discarded the saved {' and '.join(gone)}"
+
+    # ---- start ----------------------------------------------------------------------------
 
     def env(self) -> dict[str, str]:
         env = dict(os.environ)
@@ -150,24 +427,46 @@ class Stack:
 
     def link(self, tier: str, tags: dict[str, Tag], name: str) -> Link:
         """A reconnecting client of ``tier`` as the CLI (the board and the start-up checks)."""
-        return Link(
-            self.tiers[tier].url, tags, name=name, setup=client_setup(cli_identity(self.home)), timeout_s=2.0
-        )
+        identity = self.identity or cli_identity(self.home)
+        return Link(self.tiers[tier].url, tags, name=name, setup=client_setup(identity), timeout_s=2.0)
 
-    async def start(self) -> None:
+    async def start(self, stop: asyncio.Event) -> bool:
         """Start the tiers bottom-up; each must answer a read before the next starts.
 
-        In lock-step the PLC waits for the supervisor's first heartbeat, so the supervisor is
-        started right after the PLC has started listening.
+        Returns False as soon as ``stop`` is set (the caller stops what was started). Raises
+        :class:`StartError` when a tier dies or does not answer. In lock-step the PLC waits for
+        the supervisor's first heartbeat, so the supervisor is started right after the PLC has
+        started listening.
         """
         for name in TIERS:
             tier = self.tiers.get(name)
             if tier is None:
                 continue
+            if stop.is_set():
+                return False
             await tier.start(self.env())
-            await self.wait_ready(tier)
+            if not await self.wait_ready(tier, stop):
+                return False
+            self.say(f"{tier.name:10s} {tier.url}   (log {tier.log_path})")
+        return True
 
-    async def wait_ready(self, tier: Tier) -> None:
+    async def wait_ready(self, tier: Tier, stop: asyncio.Event) -> bool:
+        """Until ``tier`` answers a read (True) or ``stop`` is set (False)."""
+        probe = asyncio.create_task(self._probe(tier))
+        stopper = asyncio.create_task(stop.wait())
+        try:
+            await asyncio.wait({probe, stopper}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (probe, stopper):
+                task.cancel()
+            # A cancelled probe closes its client; bounded, for a stop must not wait on it.
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                await asyncio.wait_for(asyncio.gather(probe, stopper, return_exceptions=True), 2.0)
+        if probe.done() and not probe.cancelled() and probe.exception() is not None:
+            raise probe.exception()  # type: ignore[misc]
+        return probe.done() and not probe.cancelled()
+
+    async def _probe(self, tier: Tier) -> None:
         path = {"plant": "Plant.Sim.Time", "plc": "PLC.Status.Scan", "supervisor": "Supervisor.Mode"}[
             tier.name
         ]
@@ -177,24 +476,25 @@ class Stack:
         try:
             while True:
                 if not tier.running:
-                    raise RuntimeError(f"{tier.name} exited during start-up (see {tier.log_path})")
+                    await tier.wait(1.0)
+                    raise StartError(
+                        f"{tier.name} exited during start-up (exit {tier.exit_code}): {tier.reason()}"
+                        f"; log {tier.log_path}"
+                    )
                 if await link.ensure():
                     with contextlib.suppress(Exception):
                         await link.read([path])
                         return
                 if time.monotonic() > deadline:
-                    raise RuntimeError(
+                    raise StartError(
                         f"{tier.name} did not answer at {tier.url} within {READY_TIMEOUT_S:.0f} s"
+                        f"; log {tier.log_path}"
                     )
                 await asyncio.sleep(0.1)
         finally:
             await link.close()
 
-    async def stop(self) -> None:
-        for name in reversed(TIERS):
-            tier = self.tiers.get(name)
-            if tier is not None:
-                await tier.stop()
+    # ---- run and stop ---------------------------------------------------------------------
 
     def dead(self) -> list[Tier]:
         """Tiers whose process has exited."""
@@ -204,6 +504,69 @@ class Stack:
                 tier.exit_code = tier.proc.returncode
                 out.append(tier)
         return out
+
+    async def stop(self) -> StopReport:
+        """Stop every tier that was started, within ``STOP_BOUND_S``; the one stop path.
+
+        SIGTERM to the PLC, which gets ``PLC_FIRST_S`` alone; then SIGTERM to the others; at
+        ``STOP_GRACE_S`` SIGKILL to every process group still there. Pid files are removed.
+        """
+        t0 = time.monotonic()
+        stop_started = time.time()
+        started = [t for t in self.tiers.values() if t.proc is not None]
+        plc = self.tiers.get("plc")
+        if plc is not None and plc.running:
+            plc.signal(signal.SIGTERM)
+            await plc.wait(PLC_FIRST_S)
+        for tier in started:
+            tier.signal(signal.SIGTERM)
+        left = t0 + STOP_GRACE_S - time.monotonic()
+        await asyncio.gather(*(t.wait(left) for t in started))
+        killed = [t.name for t in started if t.running]
+        for tier in started:
+            tier.signal(signal.SIGKILL)
+        await asyncio.gather(*(t.wait(REAP_S) for t in started))
+        for tier in started:
+            tier.release()
+        lines = self.saved_lines(started, stop_started) if started else []
+        gone_at = {t.name: max(0.0, t.exited_at - t0) for t in started if t.exited_at is not None}
+        return StopReport(killed, time.monotonic() - t0, lines, gone_at)
+
+    def saved_lines(self, started: list[Tier], since: float) -> list[str]:
+        """One line per saved thing: the plant's state file, the PLC's retentive memory."""
+        lines = []
+        plant = self.tiers["plant"]
+        if plant in started:
+            fresh = self.state_file.exists() and self.state_file.stat().st_mtime >= since - 1.0
+            if fresh and not plant.killed:
+                lines.append(
+                    f"saved: plant state (levels, valves, leaks, faults, volumes) to {self.state_file}"
+                )
+            elif self.state_file.exists():
+                how = "killed" if plant.killed else f"exit {plant.exit_code}"
+                lines.append(
+                    f"not saved at stop: plant state (plant {how}); "
+                    f"its last checkpoint is in {self.state_file}"
+                )
+            else:
+                lines.append(f"not saved: plant state (no state file {self.state_file})")
+        if self.tiers.get("plc") in started:
+            if self.retain_file is None:
+                lines.append("not saved: PLC retentive memory (the config has no plc.retain_file)")
+            elif self.retain_file.exists():
+                lines.append(
+                    "saved: PLC retentive memory (setpoints, modes, gains, latched trips) "
+                    f"in {self.retain_file}"
+                )
+            else:
+                lines.append(f"not saved: PLC retentive memory (no file {self.retain_file})")
+        return lines
+
+    def release(self) -> None:
+        """Remove ``up.pid`` (the tiers' pid files go in :meth:`stop`)."""
+        if running_pid(self.pid_path) in (None, os.getpid()):
+            with contextlib.suppress(FileNotFoundError):
+                self.pid_path.unlink()
 
 
 class Board:
@@ -354,50 +717,131 @@ def _bar(level: float | None, hmax: float, width: int = 20) -> str:
 
 
 async def run_stack(
-    stack: Stack, *, board: bool, stop: asyncio.Event, restart: bool, max_restarts: int
+    stack: Stack,
+    *,
+    board: bool,
+    stop: asyncio.Event,
+    restart: bool,
+    max_restarts: int,
+    console: Console | None = None,
+    cause: Callable[[], str] = lambda: "signal",
 ) -> int:
-    """Start the stack, show the board until ``stop`` or a tier death; return the exit code."""
-    console = Console()
-    try:
-        await stack.start()
-    except RuntimeError as e:
-        await stack.stop()
-        console.print(f"tankctl: {e}", style="bold red", highlight=False)
-        return 1
-    for tier in stack.tiers.values():
-        console.print(f"{tier.name:10s} {tier.url}   (log {tier.log_path})", highlight=False)
-    view = Board(stack)
+    """Start the stack, run until ``stop`` or a tier's death, stop it; return the exit code.
+
+    Every way out (stop, death, start-up failure, exception, cancellation) goes through
+    :meth:`Stack.stop`. ``board``: the live board (a terminal only); else one line per event.
+    ``cause()`` names why ``stop`` was set (the signal).
+    """
+    console = console or Console(soft_wrap=True, highlight=False)
+    live: Live | None = None
+
+    def say(line: str) -> None:
+        (live.console if live is not None else console).print(line, markup=False, highlight=False)
+
+    stack.say = say
     code = 0
+    why = "exception"
+    view: Board | None = None
     try:
-        live = (
-            Live(view.render([]), console=console, refresh_per_second=2, transient=False) if board else None
-        )
+        try:
+            started = await stack.start(stop)
+        except StartError as e:
+            say(f"tankctl: {e}")
+            why, code = "start-up failed", 1
+            return code
+        if not started:
+            why = f"{cause()} during start-up"
+            return code
+        pids = ", ".join(f"{t.name} {t.proc.pid}" for t in stack.tiers.values() if t.proc is not None)
+        say(f"started: {stack.site.name}, pids {pids}; Ctrl-C or SIGTERM stops the stack")
+        view = Board(stack)
+        show = board and console.is_terminal
+        live = Live(view.render([]), console=console, refresh_per_second=2, transient=False) if show else None
         with live if live is not None else contextlib.nullcontext():
             while not stop.is_set():
                 dead = stack.dead()
                 if dead:
+                    for tier in dead:
+                        say(f"{tier.name} died (exit {tier.exit_code}): {tier.reason()}; log {tier.log_path}")
                     if restart and all(t.restarts < max_restarts for t in dead):
                         for tier in dead:
                             tier.restarts += 1
-                            await tier.stop()
                             await tier.start(stack.env())
+                            say(f"{tier.name} restarted ({tier.restarts} of {max_restarts})")
                     else:
-                        await view.refresh()
                         if live is not None:
+                            await view.refresh()
                             live.update(view.render(dead))
-                        else:
-                            for tier in dead:
-                                console.print(
-                                    f"tankctl: {tier.name} died (exit {tier.exit_code}); see {tier.log_path}"
-                                )
-                        code = 1
+                        why, code = f"{', '.join(t.name for t in dead)} died", 1
                         break
                 if live is not None:
                     await view.refresh()
                     live.update(view.render([]))
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(stop.wait(), 1.0)
+            else:
+                why = cause()
+        live = None
+        return code
     finally:
-        await view.close()
-        await stack.stop()
-    return code
+        live = None
+        say(f"stopping ({why})")
+        if view is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(view.close(), 2.0)
+        report = await asyncio.shield(stack.stop())
+        for line in report.lines:
+            say(line)
+        killed = f"; killed after {STOP_GRACE_S:g} s: {', '.join(report.killed)}" if report.killed else ""
+        each = ", ".join(f"{name} {s:.1f} s" for name, s in report.gone_at.items())
+        say(f"stopped in {report.seconds:.1f} s{f' ({each})' if each else ''}{killed}")
+        stack.release()
+
+
+class StopSignals:
+    """SIGINT and SIGTERM, recorded from the moment ``up`` begins.
+
+    :meth:`install` runs before the preflight writes anything; :func:`run_up` hands over to
+    asyncio's handlers and stops at once when a signal came before. ``first`` names the first
+    signal received.
+    """
+
+    def __init__(self) -> None:
+        self.got: list[str] = []
+        self.stop: asyncio.Event | None = None
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, _frame: self.received(signal.Signals(signum)))
+
+    def received(self, sig: signal.Signals) -> None:
+        if not self.got:
+            self.got.append(sig.name)
+        if self.stop is not None:
+            self.stop.set()
+
+    def first(self) -> str:
+        return self.got[0] if self.got else "stop"
+
+
+def run_up(
+    main: Callable[[asyncio.Event, Callable[[], str]], Awaitable[int]], signals: StopSignals | None = None
+) -> int:
+    """Run ``main(stop, cause)`` under asyncio with SIGINT/SIGTERM setting ``stop``.
+
+    The handlers are installed before ``main`` starts any child (and ``signals`` may have
+    recorded one earlier: ``stop`` is then set from the start); ``cause()`` names the first
+    signal received. Returns ``main``'s exit code.
+    """
+    signals = signals or StopSignals()
+
+    async def runner() -> int:
+        signals.stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, signals.received, sig)
+        if signals.got:
+            signals.stop.set()
+        return await main(signals.stop, signals.first)
+
+    return asyncio.run(runner())

@@ -1,0 +1,314 @@
+"""`tankctl up`'s lifecycle through real processes: preflight, stop at any moment, pid files,
+what a stop saved, ``--fresh`` and the line mode of piped output (issue #21, decision 0018).
+
+Every ``up`` runs as a subprocess in its own session with its output piped (so it is in line
+mode); assertions are on its exit code, its lines, the run directory's files and the absence of
+its processes (read from /proc). Waits are bounded (``wait_until``); the product's own stop
+bound is 10 s, the tests allow 30 s and print the time they saw, as information only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from helpers import ROOT, secure, wait_until
+from tanklab.ua import resolve
+
+CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
+SITE = "three_tank_energies_sim"
+pytestmark = pytest.mark.process
+
+
+def free_base() -> int:
+    """Like ``free_base_port``, from a random start: test sessions sharing the machine all scan
+    from 21000 up and would otherwise race for the same ports."""
+    for _ in range(200):
+        base = random.randrange(21000, 31000 - 3)
+        with contextlib.ExitStack() as socks:
+            try:
+                for k in range(3):
+                    s = socks.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM))
+                    s.bind(("127.0.0.1", base + k))
+            except OSError:
+                continue
+        return base
+    raise RuntimeError("no three consecutive free ports")
+
+
+def tanklab_pids(base: int) -> list[int]:
+    """Live tankctl processes bound (by their arguments) to the ports base..base+2."""
+    ports = {str(base + k) for k in range(3)}
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state == "Z" or "tankctl" not in argv:
+            continue
+        flags = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--port", "--base-port")}
+        if flags & ports:
+            found.append(int(entry.name))
+    return found
+
+
+class Up:
+    """`tankctl up` as a subprocess (own session, output piped); every line it prints is kept."""
+
+    def __init__(self, base: int, log_dir: Path, *extra: str) -> None:
+        self.base = base
+        self.log_dir = log_dir
+        self.run_dir = log_dir / SITE
+        self.args = ["up", "--config", str(CONFIG), "--base-port", str(base), "--log-dir", str(log_dir)]
+        self.args += list(extra)
+        self.proc: asyncio.subprocess.Process | None = None
+        self.lines: list[str] = []
+        self._reader: asyncio.Task[None] | None = None
+
+    async def launch(self) -> Up:
+        self.proc = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "tankctl",
+            *self.args,
+            cwd=ROOT,
+            start_new_session=True,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT,
+        )
+        self._reader = asyncio.create_task(self._read())
+        return self
+
+    async def _read(self) -> None:
+        assert self.proc is not None and self.proc.stdout is not None
+        while line := await self.proc.stdout.readline():
+            self.lines.append(line.decode().rstrip("\n"))
+
+    def said(self, start: str) -> bool:
+        return any(line.startswith(start) for line in self.lines)
+
+    async def wait_line(self, start: str, deadline_s: float = 120) -> None:
+        def seen() -> bool:
+            if self.said(start):
+                return True
+            ended = self.proc is not None and self.proc.returncode is not None
+            if ended and self._reader is not None and self._reader.done():
+                raise AssertionError(f"tankctl up exited early: {self.lines}")
+            return False
+
+        await wait_until(seen, deadline_s, what=f"a line {start!r} from tankctl up")
+
+    async def started(self) -> Up:
+        await self.launch()
+        await self.wait_line("started: ")
+        return self
+
+    async def terminate(self, deadline_s: float = 30) -> tuple[int, float]:
+        """SIGTERM; the exit code and the seconds it took (information, not asserted)."""
+        assert self.proc is not None
+        t0 = time.monotonic()
+        with_signal = self.proc.returncode is None
+        if with_signal:
+            self.proc.send_signal(signal.SIGTERM)
+        code = await asyncio.wait_for(self.proc.wait(), deadline_s)
+        if self._reader is not None:
+            await asyncio.wait_for(self._reader, 10)
+        return code, time.monotonic() - t0
+
+    async def cleanup(self) -> None:
+        """On every path: nothing of this run stays (SIGKILL to what is left, then assert)."""
+        if self.proc is not None and self.proc.returncode is None:
+            self.proc.kill()
+            await self.proc.wait()
+        if self._reader is not None and not self._reader.done():
+            self._reader.cancel()
+        for pid in tanklab_pids(self.base):
+            os.kill(pid, signal.SIGKILL)
+
+    def pid_files(self) -> list[Path]:
+        return sorted(self.run_dir.glob("*.pid"))
+
+
+def gone_pid() -> int:
+    """The pid of a process that has exited (a stale pid file's content)."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+async def assert_nothing_left(up: Up) -> None:
+    await wait_until(lambda: not tanklab_pids(up.base), 10, what="no tankctl process of the run")
+    assert up.pid_files() == []
+
+
+@pytest.mark.parametrize("moment", ["launch", "plant spawned", "plant up", "all up"])
+async def test_sigterm_at_any_moment_stops_every_tier_and_leaves_no_pid_file(
+    tmp_path: Path, moment: str
+) -> None:
+    up = Up(free_base(), tmp_path / "var", "--no-board", "--speed", "5")
+    try:
+        await up.launch()
+        if moment == "plant spawned":
+            await wait_until((up.run_dir / "plant.pid").exists, 120, what="plant.pid")
+        elif moment == "plant up":
+            await up.wait_line("plant      opc.tcp://")
+        elif moment == "all up":
+            await up.wait_line("started: ")
+        code, seconds = await up.terminate()
+        print(f"\nSIGTERM at {moment!r}: up exited {code} after {seconds:.2f} s; lines {up.lines}")
+        # Right after launch the signal may come before Python has started at all: the default
+        # action then ends `up` before it started anything (exit -15).
+        assert code == 0 or (moment == "launch" and code == -signal.SIGTERM), up.lines
+        if code == 0:
+            assert up.lines[-1].startswith("stopped in "), up.lines
+            assert any(line.startswith("stopping (SIGTERM") for line in up.lines), up.lines
+        await assert_nothing_left(up)
+        assert not (up.run_dir / "up.pid").exists()
+    finally:
+        await up.cleanup()
+
+
+async def test_second_up_refuses_busy_ports_and_a_running_run_dir_and_the_first_keeps_running(
+    tmp_path: Path,
+) -> None:
+    base = free_base()
+    first = await Up(base, tmp_path / "a", "--no-board", "--speed", "5").started()
+    try:
+        pids = {p.name: p.read_text() for p in first.pid_files()}
+        stamps = {p.name: p.stat().st_mtime_ns for p in first.pid_files()}
+        assert set(pids) == {"up.pid", "plant.pid", "plc.pid", "supervisor.pid"}
+
+        def up(*args: str) -> subprocess.CompletedProcess[str]:
+            cmd = [sys.executable, "-m", "tankctl", "up", "--config", str(CONFIG), "--no-board", *args]
+            return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=60, check=False)
+
+        # The same ports, another run directory: one line naming the port and the tier.
+        r = up("--base-port", str(base), "--log-dir", str(tmp_path / "b"))
+        assert r.returncode == 2, r.stdout + r.stderr
+        assert r.stdout == ""
+        assert r.stderr.count("\n") == 1, r.stderr
+        assert r.stderr.startswith(f"tankctl: port {base} (plant) on 127.0.0.1 is already in use"), r.stderr
+        assert not (tmp_path / "b" / SITE).exists()
+        # Other ports, the same run directory: refused, naming the running stack's pid file.
+        other = free_base()
+        while other <= base + 2 < other + 3 or base <= other + 2 < base + 3:
+            other += 7
+        r = up("--base-port", str(other), "--log-dir", str(tmp_path / "a"))
+        assert r.returncode == 2, r.stdout + r.stderr
+        assert r.stderr.count("\n") == 1, r.stderr
+        assert r.stderr.startswith(f"tankctl: {first.run_dir / 'up.pid'}: pid "), r.stderr
+        assert not tanklab_pids(other)
+        # The first stack is untouched: its pid files, its processes.
+        assert {p.name: p.read_text() for p in first.pid_files()} == pids
+        assert {p.name: p.stat().st_mtime_ns for p in first.pid_files()} == stamps
+        assert first.proc is not None and first.proc.returncode is None
+        for text in pids.values():
+            os.kill(int(text), 0)
+        code, seconds = await first.terminate()
+        print(f"\nstop of a running stack: {seconds:.2f} s")
+        assert code == 0, first.lines
+        await assert_nothing_left(first)
+    finally:
+        await first.cleanup()
+
+
+async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> None:
+    """Piped output without --no-board gives the line mode; stale pid files are replaced."""
+    base = free_base()
+    run_dir = tmp_path / "var" / SITE
+    run_dir.mkdir(parents=True)
+    for name in ("up.pid", "plant.pid"):
+        (run_dir / name).write_text(f"{gone_pid()}\n")
+    up = Up(base, tmp_path / "var", "--speed", "5")
+    try:
+        await up.started()
+        ops = [sys.executable, "-m", "tankctl"]
+        for args in (["leak", "T1", "0.3"], ["setpoint", "LIC1", "0.45"]):
+            r = subprocess.run(
+                [*ops, *args, "--base-port", str(base)],
+                capture_output=True,
+                text=True,
+                cwd=ROOT,
+                timeout=60,
+                check=False,
+            )
+            assert r.returncode == 0, r.stderr
+        assert (await up.terminate())[0] == 0, up.lines
+        state, retain = run_dir / "plant-state.json", run_dir / "plc-retain.json"
+        assert f"saved: plant state (levels, valves, leaks, faults, volumes) to {state}" in up.lines
+        assert any(
+            line.startswith("saved: PLC retentive memory") and str(retain) in line for line in up.lines
+        )
+        assert json.loads(state.read_text())["leak_openings"][0] == pytest.approx(0.3)
+        assert "0.45" in retain.read_text()
+        await assert_nothing_left(up)
+    finally:
+        await up.cleanup()
+    # The line mode: one line per event, in this order.
+    kinds = ["plant ", "plc ", "supervisor ", "started: ", "stopping (SIGTERM)", "saved: ", "saved: "]
+    events = [
+        next(k for k in kinds if line.startswith(k)) for line in up.lines if line.startswith(tuple(kinds))
+    ]
+    assert events == kinds, up.lines
+    assert up.lines[-1].startswith("stopped in "), up.lines
+
+    fresh = Up(base, tmp_path / "var", "--no-board", "--speed", "5", "--fresh")
+    try:
+        await fresh.started()
+        assert fresh.lines[0] == (
+            "fresh start from the config's initial state: discarded the saved plant state "
+            f"{state} and PLC retentive memory {retain}"
+        ), fresh.lines
+        plant = f"opc.tcp://127.0.0.1:{base}/tanklab/plant"
+        plc = f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc"
+        async with await secure(plant) as client:
+            assert await (await resolve(client, ["Plant.T1.Leak"]))["Plant.T1.Leak"].read_value() == 0
+        async with await secure(plc) as client:
+            sp = await (await resolve(client, ["PLC.LIC1.SP"]))["PLC.LIC1.SP"].read_value()
+            assert sp == pytest.approx(0.4)
+        assert (await fresh.terminate())[0] == 0, fresh.lines
+        assert json.loads(state.read_text())["leak_openings"][0] == 0
+        await assert_nothing_left(fresh)
+    finally:
+        await fresh.cleanup()
+
+
+async def test_a_tier_dying_during_start_up_is_reported_with_the_reason_from_its_log(tmp_path: Path) -> None:
+    """The PLC's port is taken after the preflight (once the plant is up): the PLC cannot bind."""
+    base = free_base()
+    up = Up(base, tmp_path / "var", "--no-board", "--speed", "5")
+    blocker = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    try:
+        await up.launch()
+        await wait_until((up.run_dir / "plant.pid").exists, 120, what="plant.pid")
+        blocker.bind(("127.0.0.1", base + 1))
+        blocker.listen()
+        assert up.proc is not None
+        code = await asyncio.wait_for(up.proc.wait(), 120)
+        await asyncio.wait_for(up._reader or asyncio.sleep(0), 10)
+        assert code == 1, up.lines
+        died = [
+            line for line in up.lines if line.startswith("tankctl: plc exited during start-up (exit 2): ")
+        ]
+        assert len(died) == 1, up.lines
+        assert "address already in use" in died[0].lower(), died
+        assert up.lines[-1].startswith("stopped in "), up.lines
+        await assert_nothing_left(up)
+    finally:
+        blocker.close()
+        await up.cleanup()
