@@ -31,7 +31,8 @@ Client side
     given paths; :func:`read_values` reads many values in one Read. :class:`Link` is the tiers'
     client of the tier below: bounded requests, reconnection with capped exponential backoff and
     jitter (:func:`backoff_delay`, a pure function of the attempt number and a random source),
-    one warning line per failed attempt, and its attempts and last error for status nodes.
+    one log line per failed attempt (a warning in the tiers), and its attempts and last error for
+    status nodes.
 """
 
 from __future__ import annotations
@@ -602,7 +603,8 @@ class Link:
     failure the next attempt waits ``backoff_delay(k - 1, rng)``; a lost connection is retried
     at once (the first attempt), a successful connection resets the count. Every failed attempt
     is one log line at ``failure_level`` naming the link, the attempt number, the endpoint, the
-    exception's class and message, and the retry delay: the tiers' links (``PlcLink``,
+    exception's class and message, and the retry delay (a failed request that drops the link
+    one line naming the request): the tiers' links (``PlcLink``,
     ``FieldLink``) pass WARNING; the default INFO keeps a command-line client's probes (``tankctl
     up`` waiting for a tier it is starting, its board) out of an unconfigured terminal, where
     Python prints warnings by itself.
@@ -708,7 +710,14 @@ class Link:
         reason = describe_error(e)
         self.last_error = f"{what}: {reason}"
         if self.healthy:
-            log.warning("%s link: %s on %s failed (%s); reconnecting", self.name, what, self.url, reason)
+            log.log(
+                self.failure_level,
+                "%s link: %s on %s failed (%s); reconnecting",
+                self.name,
+                what,
+                self.url,
+                reason,
+            )
         self.healthy = False
         client, self.client = self.client, None
         if client is not None:
