@@ -6,8 +6,9 @@ co-simulation both drive it. Setters validate their values (``ValueError`` namin
 and leave the state untouched on refusal.
 
 Pump-command watchdog: when no command has arrived for ``command_timeout_s`` of model time,
-each pump goes to its safe state (``off``: the lowest command; ``hold``: keep the last one)
-until the next command.
+each pump goes to its own safe state (``pumps[].watchdog_safe_state``, by default the plant
+watchdog's ``safe_state``; ``off``: the lowest command; ``hold``: keep the last one) until the
+next command.
 """
 
 from __future__ import annotations
@@ -71,7 +72,9 @@ class PlantSimulator:
         self._sw_low = np.array([s.low_m for s in sw])
         self.readings = self.transmitters.read(self.levels, self.t_s)
         self.command_timeout_s = config.watchdog.command_timeout_s
-        self.safe_state = config.watchdog.safe_state
+        self.safe_states = tuple(config.pump_safe_state(p.name) for p in config.pumps)
+        """Each pump's watchdog safe state (pump order): ``off`` or ``hold``."""
+        self._safe_off = np.array([s == "off" for s in self.safe_states])
         self.last_command_s = 0.0
         self.watchdog_tripped = False
         self._commanded = self.inputs.pump_commands.copy()
@@ -189,8 +192,9 @@ class PlantSimulator:
 
     def _apply_commands(self) -> None:
         cmd = self._commanded
-        if self.watchdog_tripped and self.safe_state == "off":
-            cmd = self.net.pump_cmd_min
+        if self.watchdog_tripped:
+            # per pump: ``off`` goes to its lowest command, ``hold`` keeps the last one
+            cmd = np.where(self._safe_off, self.net.pump_cmd_min, cmd)
         u = self.inputs
         # a new inputs object (callers may hold the old one), built directly: what
         # dataclasses.replace does, at a fifth of its cost
@@ -270,22 +274,52 @@ class PlantSimulator:
             "valve_openings": self.inputs.valve_openings.tolist(),
             "leak_openings": self.inputs.leak_openings.tolist(),
             "disturbances_m3_s": self.inputs.disturbances_m3_s.tolist(),
+            "faults": [SensorFault(f).name for f in self.transmitters.fault],
+            "fault_values": self.transmitters.fault_value.tolist(),
+            "fault_since_s": self.transmitters.fault_since_s.tolist(),
+            "last_readings": self.transmitters.last.tolist(),
+            "last_command_s": self.last_command_s,
+            "watchdog_tripped": self.watchdog_tripped,
         }
 
     def restore(self, snap: dict[str, Any]) -> None:
-        """Resume from :meth:`snapshot` output (shapes checked; a mismatch raises ValueError)."""
-        x = np.asarray(snap["x"], dtype=float)
-        if x.shape != (self.net.n_states,):
-            raise ValueError(f"checkpoint state has shape {x.shape}, this plant needs ({self.net.n_states},)")
+        """Resume from :meth:`snapshot` output.
+
+        Shapes and values are checked before anything changes (a mismatch raises ValueError and
+        the simulator is left as it was). The sensor faults are optional (files written before
+        they were checkpointed resume without faults). The pump watchdog resumes as it was (the time
+        of the last command, tripped or not; older files: a fresh timeout from the restored time).
+        """
+        n, nv, np_ = self.net.n_tanks, self.net.n_valves, self.net.n_pumps
+
+        def vector(key: str, size: int, default: list[float] | None = None) -> FloatArray:
+            v = np.asarray(snap.get(key, default) if default is not None else snap[key], dtype=float)
+            if v.shape != (size,) or not np.all(np.isfinite(v)):
+                raise ValueError(f"checkpoint {key} must be {size} finite values, got {v.tolist()}")
+            return v
+
+        x = vector("x", self.net.n_states)
+        commands = vector("pump_commands", np_)
+        valves, leaks = vector("valve_openings", nv), vector("leak_openings", n)
+        disturbances = vector("disturbances_m3_s", n)
+        if np.any(valves < 0) or np.any(valves > 1) or np.any(leaks < 0) or np.any(leaks > 1):
+            raise ValueError("checkpoint openings must lie in [0, 1]")
+        faults = [SensorFault[str(f)] for f in snap.get("faults", ["NONE"] * n)]
+        if len(faults) != n:
+            raise ValueError(f"checkpoint faults must be {n} names, got {faults}")
+        fault_values = vector("fault_values", n, [0.0] * n)
+        fault_since = vector("fault_since_s", n, [0.0] * n)
+        last = vector("last_readings", n, self.transmitters.last.tolist())
         self.x = x
         self.t_s = float(snap["t_s"])
         self.stored0_m3 = float(snap["stored0_m3"])
-        self._commanded = np.asarray(snap["pump_commands"], dtype=float)
-        self.inputs = PlantInputs(
-            self._commanded.copy(),
-            np.asarray(snap["valve_openings"], dtype=float),
-            np.asarray(snap["leak_openings"], dtype=float),
-            np.asarray(snap["disturbances_m3_s"], dtype=float),
-        )
-        self.last_command_s = self.t_s
+        self._commanded = commands
+        self.inputs = PlantInputs(commands.copy(), valves, leaks, disturbances)
+        self.transmitters.fault = faults
+        self.transmitters.fault_value = fault_values
+        self.transmitters.fault_since_s = fault_since
+        self.transmitters.last = last
+        self.last_command_s = float(snap.get("last_command_s", self.t_s))
+        self.watchdog_tripped = bool(snap.get("watchdog_tripped", False))
+        self._apply_commands()
         self.readings = self.transmitters.read(self.levels, self.t_s)

@@ -5,22 +5,24 @@ Every ``tick_s`` of wall time (0.05 s) (on deadlines: next = previous + tick), t
 the loop does not advance the model: ``Plant.Sim.Advance`` does, driven by the PLC.
 
 The clock is injected (:class:`tanklab.clock.Clock`), so tests may drive it. A checkpoint of the
-model state is written to the configured state file every ``checkpoint_s`` of wall time and on
-stop, and read back at start: water does not vanish when the simulator restarts.
+model state (levels, volumes, pump commands, valves, leaks, disturbances, sensor faults) is
+written atomically and durably (:func:`tanklab.persist.write_atomic`) to the state file every
+``checkpoint_s`` of wall time, at the tick after an operator's write, and on stop, and read back
+at start: water does not vanish when the simulator restarts, and the server publishes the
+restored settings on its writable nodes (restored means shown).
 """
 
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
-import os
 from pathlib import Path
 
 from plant_sim.plant import PlantSimulator
 from plant_sim.server import PlantServer
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
+from tanklab.persist import read_json, write_json_atomic
 from tanklab.ua_security import ServerSecurity
 
 log = logging.getLogger(__name__)
@@ -34,20 +36,24 @@ def load_checkpoint(sim: PlantSimulator, path: Path) -> bool:
     if not path.exists():
         return False
     try:
-        sim.restore(json.loads(path.read_text(encoding="utf-8")))
-    except (OSError, ValueError, KeyError) as e:
+        sim.restore(read_json(path))
+    except (OSError, ValueError, KeyError, TypeError) as e:
         log.warning("ignoring unreadable plant checkpoint %s: %s", path, e)
         return False
-    log.info("resumed plant state from %s at t = %.1f s", path, sim.t_s)
+    log.info(
+        "resumed plant state from %s at t = %.1f s (leaks %s, valves %s, faults %s)",
+        path,
+        sim.t_s,
+        sim.inputs.leak_openings.tolist(),
+        sim.inputs.valve_openings.tolist(),
+        [f.name for f in sim.transmitters.fault],
+    )
     return True
 
 
 def save_checkpoint(sim: PlantSimulator, path: Path) -> None:
-    """Write the checkpoint atomically (temp file, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(sim.snapshot()), encoding="utf-8")
-    os.replace(tmp, path)
+    """Write the checkpoint atomically and durably (temp file, fsync, rename)."""
+    write_json_atomic(path, sim.snapshot())
 
 
 async def run_plant(
@@ -92,7 +98,9 @@ async def run_plant(
             if not lockstep:
                 sim.advance(tick_s * speed)
                 await server.publish()
-            if state_file is not None and clock.now() - last_checkpoint >= checkpoint_s:
+            due = server.settings_changed or clock.now() - last_checkpoint >= checkpoint_s
+            if state_file is not None and due:
+                server.settings_changed = False
                 save_checkpoint(sim, state_file)
                 last_checkpoint = clock.now()
             deadlines.finished(clock.now())

@@ -59,6 +59,9 @@ class PlantServer:
         self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
         self.advances = 0
+        self.settings_changed = False
+        """An operator's write (leak, valve, fault, disturbance) since the runtime last
+        checkpointed: the runtime stores it at its next tick, not only every few seconds."""
 
     async def start(self) -> None:
         """Initialise, secure, build the address space and start listening."""
@@ -72,6 +75,9 @@ class PlantServer:
             methods={"Plant.Sim.Advance": self._advance},
         )
         self.publisher = self.tier.publisher
+        # The writable nodes were built with the config's initial values; a resumed simulator
+        # (checkpoint) has its own: publish what the model holds, so restored means shown.
+        await self.publisher.publish(self.writable_values())
         await self.publish()
         log.info("plant server listening at %s", self.url)
 
@@ -105,6 +111,8 @@ class PlantServer:
         except (ValueError, KeyError) as e:
             log.info("write to %s refused by the model: %s", tag.path, e)
             return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
+        if item != "Command":
+            self.settings_changed = True
         # Pump commands arrive every scan: worth a debug line; an operator's write is an event.
         log.log(logging.DEBUG if item == "Command" else logging.INFO, "%s := %r", tag.path, value)
         return None
@@ -127,6 +135,24 @@ class PlantServer:
         ]
 
     # ---- publishing ---------------------------------------------------------------------
+
+    def writable_values(self) -> dict[str, Any]:
+        """Every writable plant value as the simulator holds it, keyed by tag path: leaks,
+        disturbances, valve openings, sensor faults and their values, pump commands (as last
+        written, before any watchdog safe state)."""
+        sim = self.sim
+        u = sim.inputs
+        values: dict[str, Any] = {}
+        for i, name in enumerate(sim.net.tank_names):
+            values[f"Plant.{name}.Leak"] = float(u.leak_openings[i])
+            values[f"Plant.{name}.Disturbance"] = float(u.disturbances_m3_s[i])
+            values[f"Plant.LT{name[1:]}.Fault"] = int(sim.transmitters.fault[i])
+            values[f"Plant.LT{name[1:]}.FaultValue"] = float(sim.transmitters.fault_value[i])
+        for k, name in enumerate(sim.net.valve_names):
+            values[f"Plant.{name}.Opening"] = float(u.valve_openings[k])
+        for j, name in enumerate(sim.net.pump_names):
+            values[f"Plant.{name}.Command"] = float(sim.commands[j])
+        return {p: v for p, v in values.items() if p in self.by_path}
 
     def snapshot_values(self) -> dict[str, Any]:
         """Every read-only plant value now, keyed by tag path."""

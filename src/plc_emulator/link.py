@@ -74,6 +74,26 @@ class FieldLink:
         good = np.array([dv.StatusCode is None or dv.StatusCode.is_good() for dv in dvs], dtype=bool)
         return FieldReadings(levels, good)
 
+    async def read_state(self) -> tuple[NDArray[np.float64], FieldReadings] | None:
+        """The plant's pump commands now (as last written, pump order; NaN where unreadable) and
+        every transmitter reading, in one Read; None when the plant cannot be read (a warm
+        restart's look at the process before its first scan)."""
+        if not await self.link.ensure():
+            return None
+        try:
+            dvs = await self.link.read(self.cmd_paths + self.lt_paths)
+        except LinkError as e:
+            log.warning("%s", e)
+            return None
+        good = [dv.StatusCode is None or dv.StatusCode.is_good() for dv in dvs]
+        values = [
+            float(dv.Value.Value) if ok and dv.Value is not None and dv.Value.Value is not None else np.nan
+            for dv, ok in zip(dvs, good, strict=True)
+        ]
+        n = len(self.cmd_paths)
+        levels = FieldReadings(np.array(values[n:]), np.array(good[n:], dtype=bool))
+        return np.array(values[:n]), levels
+
     async def write_commands(self, commands: NDArray[np.float64]) -> bool:
         """Write every pump command; whether the plant took them all."""
         if not self.link.healthy:

@@ -741,6 +741,25 @@ class Pid:
         j = _check_loop(loop, self._r.n)
         self._u[j] = self._clamp(j, _finite_scalar("mv", mv))
 
+    def resume(self, loop: int, mv: float, sp: float, pv: float) -> None:
+        """Continue a loop from a running process (a warm restart), bumplessly.
+
+        The applied-MV memory u(k-1) becomes ``mv`` (clamped: the actuator's command now) and
+        the memory of the last good scan becomes (w(k-1), y(k-1)) = (``sp`` clamped to
+        [sp_min, sp_max], ``pv``), with no derivative history, as if the scan before had run
+        on that reading. The next step is then an ordinary velocity-form increment from ``mv``:
+        with the same SP and PV, ``Ki * Ts * e`` alone (no proportional or derivative kick).
+        A non-finite ``pv`` only sets u(k-1) (the memory re-initialises on the next good scan).
+        """
+        j = _check_loop(loop, self._r.n)
+        self._u[j] = self._clamp(j, _finite_scalar("mv", mv))
+        target = min(max(_finite_scalar("sp", sp), float(self._r.sp_lo[j])), float(self._r.sp_hi[j]))
+        if math.isfinite(pv):
+            self._w_mem[j] = target
+            self._y_mem[j] = float(pv)
+            self._d_prev[j] = 0.0
+            self._needs_init[j] = False
+
     def step(self, sp: ArrayLike, pv: ArrayLike, pv_good: ArrayLike | None = None) -> PidStepResult:
         """Run one scan.
 

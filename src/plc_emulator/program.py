@@ -653,10 +653,13 @@ class PlcProgram:
     # ---- retentive memory (warm restart) -------------------------------------------------
 
     def retained(self) -> dict[str, Any]:
-        """The retentive data of a warm restart: per loop SP, mode, applied gains and their source
-        (ENGINEER included: an engineer's hold survives a restart).
+        """The retentive data of a warm restart (JSON-able).
 
-        Latched interlocks are retained too: a trip survives a restart until an operator resets it.
+        Per loop: SP, the engineer's SP limits, mode, manual MV, the applied gains and their source
+        (ENGINEER included: an engineer's hold survives a restart) and the last MV (the fallback
+        start value when the plant cannot be read at start). Latched interlocks (a trip survives
+        a restart until an operator resets it), the scan counter (scans run so far) and the model
+        time at the start of the last scan [s].
         """
         loops = {}
         for lp in self.loops:
@@ -668,19 +671,37 @@ class PlcProgram:
                 "gains": [g.kp, g.ki, g.kd] if g is not None else None,
                 "source": lp.source.name,
                 "manual_mv": lp.manual_mv,
+                "mv": lp.mv,
             }
-        return {"loops": loops, "tripped": [il.tank_name for il in self.interlocks if il.tripped]}
+        return {
+            "scan": self.scan_count,
+            "t_s": self.t_s,
+            "loops": loops,
+            "tripped": [il.tank_name for il in self.interlocks if il.tripped],
+        }
 
     def restore_retained(self, data: Mapping[str, Any]) -> list[str]:
         """Warm restart from :meth:`retained` output; return what could not be restored.
 
         Every value is checked as if it were written now (setpoint range, gain box, MV range);
         an entry that fails keeps the cold-start value and is reported, never half-applied.
+        The scan counter and the model time continue from the retained ones (the next scan is
+        ``scan + 1`` at ``t_s + Ts``: :attr:`next_scan_t_s`); each loop's MV starts at its
+        retained MV until :meth:`resume_from_plant` puts it at the pump's command.
         Gains from the supervisor come back as SUPERVISOR; the watchdog turns them into FALLBACK
         if the supervisor does not return within its timeout. An engineer's gains come back as
         ENGINEER, still held (the supervisor stays off them until a release or a reset).
         """
         skipped: list[str] = []
+        if "scan" in data or "t_s" in data:  # absent in files of earlier versions
+            try:
+                scan, t_s = data["scan"], float(data["t_s"])
+                if type(scan) is not int or scan < 0 or not (math.isfinite(t_s) and t_s >= 0.0):
+                    raise ValueError(f"scan {scan!r} and model time {t_s!r} must be >= 0")
+            except (KeyError, ValueError, TypeError) as e:
+                skipped.append(f"scan counter and model time: {e}")
+            else:
+                self.scan_count, self.t_s = scan, t_s
         for name, entry in dict(data.get("loops", {})).items():
             try:
                 lp = self.loop(name)
@@ -707,6 +728,10 @@ class PlcProgram:
                 self.set_mode(name, LoopMode[str(entry["mode"])])
                 lp.mode_changed_scan = -1  # a restored mode is not a change in progress
                 self.set_manual_mv(name, float(entry["manual_mv"]))
+                if "mv" in entry:  # the start value until the plant's command is read
+                    mv = float(entry["mv"])
+                    self._check_mv(lp, mv)
+                    self._resume_mv(lp, mv, math.nan)
             except (KeyError, ValueError, TypeError) as e:
                 skipped.append(f"{name}: {e}")
         self._set_pid_gains()
@@ -714,6 +739,71 @@ class PlcProgram:
         for il in self.interlocks:
             il.tripped = il.tank_name in tripped
         return skipped
+
+    @property
+    def next_scan_t_s(self) -> float:
+        """Model time of the next scan [s]: 0 before the first, else the last scan's + Ts."""
+        return self.t_s + self.ts_s if self.scan_count > 0 else 0.0
+
+    def resume_from_plant(self, commands: FloatArray, levels_m: FloatArray, good: BoolArray) -> None:
+        """Warm restart: continue from the plant as it is now, before the first scan.
+
+        Parameters
+        ----------
+        commands : (n_pumps,) the plant's pump commands now [pump units] (NaN: unknown; the
+            loop keeps its retained MV).
+        levels_m : (n_tanks,) the transmitter readings now [m].
+        good : (n_tanks,) their quality.
+
+        Each loop's MV becomes its pump's command (clamped to the loop's MV range), so the first
+        scan does not move the output from where the pump is: a PID continues its velocity form
+        from it, primed with the reading (``Pid.resume``: the first increment with the same SP
+        and PV is ``Ki * Ts * e`` alone), NL-PI and MRAC track it, a loop in REMOTE holds it
+        until the supervisor writes ``RemoteMV``; a loop in MANUAL applies its retained manual
+        MV from the first scan on (the operator's value), rate-limited from the pump's command.
+        The readings are shown on the PV nodes until the first scan replaces them.
+
+        Raises
+        ------
+        ValueError
+            An array does not have one entry per pump or tank (a programming error).
+        """
+        cmd = np.asarray(commands, dtype=float)
+        levels = np.asarray(levels_m, dtype=float)
+        ok = np.asarray(good, dtype=bool)
+        if cmd.shape != (self.n_pumps,) or levels.shape != self._shape or ok.shape != self._shape:
+            raise ValueError(
+                f"resume needs {self.n_pumps} commands and {self.n_tanks} levels and qualities, got "
+                f"shapes {cmd.shape}, {levels.shape} and {ok.shape}"
+            )
+        for k, x in enumerate(levels.tolist()):
+            lo, hi = self._tr_range[k]
+            if ok[k] and math.isfinite(x) and lo <= x <= hi:
+                self._last_good_m[k] = x
+            else:
+                levels[k] = math.nan
+        for lp in self.loops:
+            c = float(cmd[lp.pump])
+            mv = min(max(c, lp.mv_min), lp.mv_max) if math.isfinite(c) else lp.mv
+            pv = float(levels[lp.tank])
+            if math.isfinite(pv):
+                lp.pv_last_good_m = pv
+            self._resume_mv(lp, mv, pv)
+
+    def _resume_mv(self, lp: _Loop, mv: float, pv_m: float) -> None:
+        """Put a loop's applied MV at ``mv`` (and a PID's memory at the reading ``pv_m``)."""
+        lp.mv = mv
+        self._commands[lp.pump] = mv
+        if lp.pid is not None and lp.pid_index is not None:
+            lp.pid.resume(lp.pid_index, mv, lp.sp_m * lp.scale, pv_m * lp.scale)
+            if lp.mode is LoopMode.REMOTE:
+                lp.remote_mv = mv
+                lp.pid.set_remote_mv(lp.pid_index, mv)
+        elif lp.block is not None:
+            lp.block.track(mv)
+            if lp.mode is LoopMode.REMOTE:
+                lp.remote_mv = mv
+                lp.block.set_manual_mv(mv)
 
     def reset_interlocks(self) -> list[str]:
         """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""

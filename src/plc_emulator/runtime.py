@@ -12,9 +12,16 @@ as a missed heartbeat, and once the watchdog has declared the supervisor lost th
 waiting for it. The scan's values are published before the Advance call, so the supervisor reads
 and acknowledges them while the plant integrates (decision 0013).
 
-Retentive memory (``plc.retain_file``): SP, mode, applied gains with their source and latched
-trips are saved whenever they change and restored at start (warm restart), each value checked
-as if written now.
+Retentive memory (``plc.retain_file``, or the ``retain_file`` argument: ``tankctl plc
+--retain-file``): SP, SP limits, mode, manual MV, applied gains with their source, latched
+trips, each loop's MV, the scan counter and the model time, written atomically and durably
+(:func:`tanklab.persist.write_atomic`: temp file, fsync, rename) after every scan that changed
+them and after every applied operator write or accepted call. When the file exists at start the
+PLC warm-restarts (``cold=True``, ``tankctl plc --cold``, starts from the config instead and
+says so): each value is checked as if written now, the scan counter and model time continue,
+and before the first scan the PLC reads the plant's pump commands and level readings and
+resumes from them bumplessly (:meth:`PlcProgram.resume_from_plant`): the outputs start where the
+pumps are, not at the config's initial command. Decision 0019.
 
 Model-time timeouts have a wall-clock floor of 1 s: at speed X the heartbeat timeout is at
 least X model seconds, so scheduling noise never trips the watchdog.
@@ -23,9 +30,7 @@ least X model seconds, so scheduling noise never trips the watchdog.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +43,7 @@ from plc_emulator.program import PlcProgram, ScanInputs
 from plc_emulator.server import PlcServer
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
+from tanklab.persist import read_json, write_json_atomic
 from tanklab.ua_security import ClientIdentity, ServerSecurity, client_setup
 
 log = logging.getLogger(__name__)
@@ -61,11 +67,35 @@ class PlcRunStats:
 
 
 def _save_retained(path: Path, data: dict[str, object]) -> None:
-    """Write the retentive memory atomically (a crash mid-write leaves the previous copy)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data), encoding="utf-8")
-    os.replace(tmp, path)
+    """Write the retentive memory atomically and durably (a crash mid-write leaves the previous
+    copy): temp file, fsync, rename."""
+    write_json_atomic(path, data)
+
+
+def _warm_restore(program: PlcProgram, retain: Path | None, cold: bool) -> bool:
+    """Restore the retentive memory into ``program``; whether the PLC warm-restarts."""
+    if retain is None:
+        log.info("cold start from the config (no retentive memory configured)")
+        return False
+    if cold:
+        log.info("cold start from the config (--cold): the retentive memory %s is not read", retain)
+        return False
+    if not retain.exists():
+        log.info("cold start from the config: no retentive memory at %s yet", retain)
+        return False
+    try:
+        skipped = program.restore_retained(read_json(retain))
+    except (OSError, ValueError, TypeError, AttributeError) as e:
+        log.warning("cold start: retentive memory %s unreadable: %s", retain, e)
+        return False
+    log.info(
+        "warm restart from %s at scan %d, t = %.1f s%s",
+        retain,
+        program.scan_count,
+        program.t_s,
+        f" (not restored: {'; '.join(skipped)})" if skipped else "",
+    )
+    return True
 
 
 async def _wait_event(event: asyncio.Event, timeout_s: float) -> bool:
@@ -100,12 +130,16 @@ async def run_plc(
     ready: asyncio.Event | None = None,
     stats: PlcRunStats | None = None,
     trace: Path | None = None,
+    retain_file: Path | None = None,
+    cold: bool = False,
 ) -> PlcRunStats:
     """Scan the PLC program against the plant until ``stop`` is set.
 
     ``trace``: a CSV file that gets one line per scan (scan, model time, every level read, every
     command written, every loop's SP and mode): a small historian, and how two lock-step runs
-    are compared.
+    are compared. ``retain_file``: the retentive memory (default: ``plc.retain_file``); warm
+    restart when it exists, unless ``cold`` (start from the config; the file is then rewritten
+    from the first scan on).
     """
     if site.plc is None:
         raise ValueError(f"site {site.name!r} has no plc section")
@@ -131,17 +165,21 @@ async def run_plc(
         setup=client_setup(ClientIdentity(security.home, "plc")),
         timeout_s=min(2.0, max(0.2, ts / speed)),
     )
-    retain = Path(site.plc.retain_file) if site.plc.retain_file else None
-    if retain is not None and retain.exists():
-        try:
-            skipped = program.restore_retained(json.loads(retain.read_text(encoding="utf-8")))
-        except (OSError, ValueError) as e:
-            log.warning("cold start: retentive memory %s unreadable: %s", retain, e)
-        else:
-            log.info(
-                "warm restart from %s%s", retain, f" (not restored: {'; '.join(skipped)})" if skipped else ""
-            )
+    retain = retain_file or (Path(site.plc.retain_file) if site.plc.retain_file else None)
+    warm = _warm_restore(program, retain, cold)
     retained_last: dict[str, object] | None = None
+
+    def save_retained() -> None:
+        nonlocal retained_last
+        if retain is not None and (now_retained := program.retained()) != retained_last:
+            try:
+                _save_retained(retain, now_retained)
+            except OSError as e:  # the scan goes on; the next change tries again
+                log.warning("cannot store the retentive memory %s: %s", retain, e)
+            else:
+                retained_last = now_retained
+
+    server.on_change = save_retained
     await server.start()
     await server.publish({"PLC.Status.ScanPeriod": ts, "PLC.Supervisor.Timeout": program.watchdog.timeout_s})
     if ready is not None:
@@ -150,14 +188,30 @@ async def run_plc(
     # Connect to the plant before the first deadline: the secure handshake (a few hundred ms of
     # RSA and session set-up) is start-up, not scan work, and must not count as an overrun.
     await field_link.ensure()
+    if warm:
+        # Bumpless warm restart: start from where the pumps and the levels are now.
+        state = await field_link.read_state()
+        if state is None:
+            log.warning("warm restart: the plant cannot be read; the loops resume from their retained MVs")
+        else:
+            commands, now = state
+            program.resume_from_plant(commands, now.levels_m, now.good)
+            log.info(
+                "warm restart: resumed from the plant's commands %s and levels %s",
+                [float(c) for c in commands],
+                [float(x) for x in now.levels_m],
+            )
+        await server.publish(program.values())
     deadlines = Deadlines(period_s=period, next_deadline=clock.now())
-    t_model = 0.0
+    t_model = program.next_scan_t_s if warm else 0.0
     pending: FieldReadings | None = None  # lock-step: readings returned by the last Advance
     # A deterministic lock-step run has the supervisor in step from the first scan: wait
     # (bounded) for its first heartbeat before scanning.
     if lockstep and site.supervisor is not None and not await _wait_event(seen, LOCKSTEP_STARTUP_S):
         log.warning("no supervisor heartbeat within %.0f s: scanning without it", LOCKSTEP_STARTUP_S)
-    trace_file = trace.open("w", encoding="utf-8") if trace is not None else None
+    # Line-buffered: every scan's row is in the file once written (a killed PLC loses no row,
+    # and the file can be read while the PLC runs).
+    trace_file = trace.open("w", encoding="utf-8", buffering=1) if trace is not None else None
     if trace_file is not None:
         cols = (
             ["scan", "t_s"] + [f"LT{t[1:]}" for t in site.tank_names] + [f"{p}_cmd" for p in site.pump_names]
@@ -205,9 +259,7 @@ async def run_plc(
                 t_model += ts
             await server.publish({"PLC.Status.LastScanDuration": clock.now() - started})
             stats.scans += 1
-            if retain is not None and (now_retained := program.retained()) != retained_last:
-                _save_retained(retain, now_retained)
-                retained_last = now_retained
+            save_retained()
             if trace_file is not None and row is not None:
                 trace_file.write(",".join(repr(float(x)) for x in row) + "\n")
             if lockstep:

@@ -56,6 +56,9 @@ class PlcServer:
         self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
         self.on_heartbeat: Callable[[], None] | None = None
+        self.on_change: Callable[[], None] | None = None
+        """Called after every applied write and accepted call but the heartbeat (the runtime
+        stores the retentive memory then, not only at the end of the next scan)."""
 
     async def start(self) -> None:
         """Initialise, secure, build the address space and start listening."""
@@ -103,7 +106,12 @@ class PlcServer:
                 self.on_heartbeat()
             return None
         log.info("%s := %r", tag.path, value)
+        self._changed()
         return None
+
+    def _changed(self) -> None:
+        if self.on_change is not None:
+            self.on_change()
 
     def _set_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
         async def set_gains(kp: float, ki: float, kd: float) -> list[ua.Variant] | ua.StatusCode:
@@ -114,6 +122,7 @@ class PlcServer:
             source = GainSource.SUPERVISOR if role is Role.SUPERVISOR else GainSource.ENGINEER
             status = self.program.stage_gains(loop, kp, ki, kd, source)
             log.info("PLC.%s.SetGains(%g, %g, %g) as %s: %s", loop, kp, ki, kd, source.name, status.value)
+            self._changed()
             return ua.StatusCode(_STATUS[status])
 
         return set_gains
@@ -122,6 +131,7 @@ class PlcServer:
         async def reset_gains() -> list[ua.Variant] | ua.StatusCode:
             status = self.program.reset_gains(loop)
             log.info("PLC.%s.ResetGains: %s", loop, status.value)
+            self._changed()
             return ua.StatusCode(_STATUS[status])
 
         return reset_gains
@@ -130,6 +140,7 @@ class PlcServer:
         async def release_gains() -> list[ua.Variant] | ua.StatusCode:
             status = self.program.release_gains(loop)
             log.info("PLC.%s.ReleaseGains: %s", loop, status.value)
+            self._changed()
             return ua.StatusCode(_STATUS[status])
 
         return release_gains
@@ -137,4 +148,5 @@ class PlcServer:
     async def _reset(self) -> list[ua.Variant] | ua.StatusCode:
         reset = self.program.reset_interlocks()
         log.info("PLC.Interlock.Reset: reset %s", ", ".join(reset) or "nothing")
+        self._changed()
         return ua.StatusCode(ua.StatusCodes.Good)

@@ -335,10 +335,25 @@ def plc(
     trace: Annotated[
         Path | None, typer.Option(help="CSV file getting one line per scan (a small historian).")
     ] = None,
+    retain_file: Annotated[
+        Path | None,
+        typer.Option(
+            help="Retentive memory file (default: the config's plc.retain_file); warm restart if it exists."
+        ),
+    ] = None,
+    cold: Annotated[
+        bool,
+        typer.Option("--cold", help="Start from the config, not from the retentive memory (cold start)."),
+    ] = False,
     home: HomeOpt = None,
     audit_dir: AuditOpt = None,
 ) -> None:
-    """Serve the soft PLC at opc.tcp://HOST:PORT/tanklab/plc, scanning against the plant."""
+    """Serve the soft PLC at opc.tcp://HOST:PORT/tanklab/plc, scanning against the plant.
+
+    With a retentive memory file that exists, the PLC warm-restarts (setpoints, modes, gains,
+    latched trips, scan counter and model time; outputs resumed from the plant's pumps);
+    --cold starts from the config.
+    """
     from plc_emulator.runtime import run_plc
 
     site = load(resolve_config(config))
@@ -361,6 +376,8 @@ def plc(
             lockstep=lockstep,
             ready=ready,
             trace=trace,
+            retain_file=retain_file,
+            cold=cold,
         )
 
     serve(

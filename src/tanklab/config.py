@@ -177,6 +177,11 @@ class PumpSpec(Model):
     operating_command: Finite | None = Field(
         None, description="Command at the configured operating point (informational) [command unit]."
     )
+    watchdog_safe_state: Literal["off", "hold"] | None = Field(
+        None,
+        description="What this pump does when the plant's command watchdog times out: off (its lowest"
+        " command) or hold (its last command), until the next command; null = plant.watchdog.safe_state.",
+    )
 
     @model_validator(mode="after")
     def _range(self) -> Self:
@@ -223,7 +228,11 @@ class PlantWatchdog(Model):
     command_timeout_s: PositiveFloat = Field(
         10.0, description="Model seconds without a pump command before the pumps go to their safe state."
     )
-    safe_state: Literal["off", "hold"] = Field("off", description="What a pump does on timeout.")
+    safe_state: Literal["off", "hold"] = Field(
+        "off",
+        description="What a pump does on timeout (off: its lowest command; hold: its last command),"
+        " unless the pump sets its own watchdog_safe_state.",
+    )
 
 
 class PlantConfig(Model):
@@ -287,6 +296,11 @@ class PlantConfig(Model):
             if p.name == name:
                 return p
         raise KeyError(name)
+
+    def pump_safe_state(self, name: str) -> Literal["off", "hold"]:
+        """The watchdog safe state of pump ``name``: its own, else the plant watchdog's."""
+        own = self.pump(name).watchdog_safe_state
+        return own if own is not None else self.watchdog.safe_state
 
 
 # --------------------------------------------------------------------------------------------
