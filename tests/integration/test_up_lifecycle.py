@@ -14,6 +14,7 @@ import contextlib
 import json
 import os
 import random
+import shutil
 import signal
 import socket
 import subprocess
@@ -24,6 +25,7 @@ from pathlib import Path
 import pytest
 
 from helpers import ROOT, secure, wait_until
+from tankctl.up import last_error_line, running_pid
 from tanklab.ua import resolve
 
 CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
@@ -312,3 +314,75 @@ async def test_a_tier_dying_during_start_up_is_reported_with_the_reason_from_its
     finally:
         blocker.close()
         await up.cleanup()
+
+
+async def test_a_tier_dying_later_is_reported_and_the_stack_stopped(tmp_path: Path) -> None:
+    up = Up(free_base(), tmp_path / "var", "--no-board", "--speed", "5")
+    try:
+        await up.started()
+        os.kill(int((up.run_dir / "plc.pid").read_text()), signal.SIGKILL)
+        assert up.proc is not None
+        code = await asyncio.wait_for(up.proc.wait(), 60)
+        await asyncio.wait_for(up._reader or asyncio.sleep(0), 10)
+        assert code == 1, up.lines
+        assert any(line.startswith("plc died (exit -9): killed by SIGKILL; log ") for line in up.lines), (
+            up.lines
+        )
+        assert "stopping (plc died)" in up.lines
+        assert up.lines[-1].startswith("stopped in "), up.lines
+        await assert_nothing_left(up)
+    finally:
+        await up.cleanup()
+
+
+def run_up(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    cmd = [sys.executable, "-m", "tankctl", "up", "--no-board", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=60, check=False, env=env)
+
+
+def test_preflight_refuses_a_broken_config_and_a_home_without_login(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(CONFIG.read_text().replace("scan_period_s:", "scan_period_sec:", 1))
+    base = free_base()
+    r = run_up("--config", str(bad), "--base-port", str(base), "--log-dir", str(tmp_path / "var"))
+    assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith(f"tankctl: {bad}"), r.stderr
+    # A security home with its PKI and users but no credentials file: the board could not log in.
+    home = tmp_path / "home"
+    shutil.copytree(os.environ["TANKLAB_HOME"], home)
+    (home / "credentials").unlink()
+    env = {k: v for k, v in os.environ.items() if k not in ("TANKLAB_USER", "TANKLAB_PASSWORD")}
+    env["TANKLAB_HOME"] = str(home)
+    r = run_up("--config", str(CONFIG), "--base-port", str(base), "--log-dir", str(tmp_path / "var"), env=env)
+    assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+    assert r.stderr == f"tankctl: no login for the board: {home / 'credentials'} is missing and " + (
+        "TANKLAB_USER/TANKLAB_PASSWORD are not set\n"
+    )
+    assert not (tmp_path / "var").exists()
+    assert not tanklab_pids(base)
+
+
+def test_a_pid_file_is_running_only_for_a_live_tankctl_process(tmp_path: Path) -> None:
+    path = tmp_path / "plant.pid"
+    assert running_pid(path) is None  # no file
+    path.write_text("garbage\n")
+    assert running_pid(path) is None
+    path.write_text(f"{gone_pid()}\n")
+    assert running_pid(path) is None  # the pid is gone
+    other = subprocess.Popen(["sleep", "30"])
+    try:
+        path.write_text(f"{other.pid}\n")
+        assert running_pid(path) is None  # alive, but not tanklab's: a reused pid
+    finally:
+        other.kill()
+        other.wait()
+
+
+def test_the_reason_of_a_death_is_the_tiers_own_line_else_the_last_error() -> None:
+    log = "20:00 INFO plc: serving\ntankctl: plc: cannot serve: address already in use\n"
+    assert last_error_line(log) == "tankctl: plc: cannot serve: address already in use"
+    log = "INFO a\nTraceback (most recent call last):\n  File x\nValueError: bad\nINFO shutting down\n"
+    assert last_error_line(log) == "ValueError: bad"
+    assert last_error_line("INFO a\nINFO b\n") == "INFO b"
+    assert last_error_line("") == "nothing in its log"
+    assert last_error_line("ERROR " + "x" * 500).endswith("...")
