@@ -462,8 +462,6 @@ def up(
     engineer account whose random password goes to the home's 0600 credentials file, which the
     operator commands read by default. Piped output (or --no-board) gives one line per event.
     SIGINT/SIGTERM stop every tier within 10 s, at any moment, and ``up`` says what was saved."""
-    import inspect
-
     from tankctl.up import PreflightError, Stack, StopSignals, run_stack, run_up
     from tanklab.home import SecurityHome, default_home
 
@@ -488,7 +486,6 @@ def up(
         log_dir / site.name,
         host=host,
         home=SecurityHome(home or default_home()),
-        plc_retain_option="retain_file" in inspect.signature(plc).parameters,
     )
     try:
         notes = stack.preflight(sorted({"localhost", "127.0.0.1", host, socket.gethostname()}))

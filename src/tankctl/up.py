@@ -244,8 +244,6 @@ class Stack:
     host: str = "127.0.0.1"
     home: SecurityHome = field(default_factory=lambda: SecurityHome(default_home()))
     say: Callable[[str], None] = print
-    plc_retain_option: bool = True
-    """Whether ``tankctl plc`` takes ``--retain-file`` (the run directory's retentive memory)."""
     tiers: dict[str, Tier] = field(default_factory=dict)
     identity: ClientIdentity | None = None
 
@@ -255,7 +253,7 @@ class Stack:
         common += ["--home", str(self.home.root)]
         lock = ["--lockstep"] if self.clock == "lockstep" else []
         state = self.state_file
-        retain = ["--retain-file", str(self.retain_file)] if self.plc_retain_option else []
+        retain = ["--retain-file", str(self.retain_file)]
         self.tiers = {
             "plant": Tier(
                 "plant",
@@ -298,14 +296,10 @@ class Stack:
         return self.log_dir / "plant-state.json"
 
     @property
-    def retain_file(self) -> Path | None:
-        """The PLC's retentive memory: ``plc-retain.json`` of this run directory (like the plant's
-        state file, whatever the config says), or the config's ``plc.retain_file`` (None: none)
-        when ``tankctl plc`` has no ``--retain-file``."""
-        if self.plc_retain_option:
-            return self.log_dir / "plc-retain.json"
-        name = self.site.plc.retain_file if self.site.plc is not None else None
-        return Path(name) if name else None
+    def retain_file(self) -> Path:
+        """The PLC's retentive memory of this run directory (like the plant's state file, it is
+        the run directory's whatever the config says)."""
+        return self.log_dir / "plc-retain.json"
 
     @property
     def pid_path(self) -> Path:
@@ -402,7 +396,7 @@ class Stack:
         """``--fresh``: delete the plant's checkpoint and the PLC's retentive memory; one line."""
         gone = []
         for what, path in (("plant state", self.state_file), ("PLC retentive memory", self.retain_file)):
-            if path is not None and path.exists():
+            if path.exists():
                 path.unlink()
                 gone.append(f"{what} {path}")
         if not gone:
@@ -551,9 +545,7 @@ class Stack:
             else:
                 lines.append(f"not saved: plant state (no state file {self.state_file})")
         if self.tiers.get("plc") in started:
-            if self.retain_file is None:
-                lines.append("not saved: PLC retentive memory (the config has no plc.retain_file)")
-            elif self.retain_file.exists():
+            if self.retain_file.exists():
                 lines.append(
                     "saved: PLC retentive memory (setpoints, modes, gains, latched trips) "
                     f"in {self.retain_file}"
