@@ -5,11 +5,16 @@ from __future__ import annotations
 import asyncio
 import os
 import socket
+import sys
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 from asyncua import Client
+
+if str(Path(__file__).resolve().parents[1]) not in sys.path:  # benchmarks/ lives at the root
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.procs import free_base_port as _free_base_port
 
 from tanklab.home import SecurityHome
 from tanklab.tags import Role
@@ -29,22 +34,12 @@ def free_port() -> int:
 
 
 def free_base_port() -> int:
-    """N such that N, N+1 and N+2 are free on 127.0.0.1 (``--base-port N``), below the ephemeral
-    port range so that no client socket of another test takes one of them meanwhile."""
-    for base in range(21000, 31000, 7):
-        socks: list[socket.socket] = []
-        try:
-            for k in range(3):
-                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-                socks.append(s)
-                s.bind(("127.0.0.1", base + k))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError("no three consecutive free ports")
+    """N such that N .. N+3 are free on 127.0.0.1 (``--base-port N``: plant, PLC, supervisor and
+    the historian's place), below the ephemeral port range so that no client socket of another
+    test takes one of them meanwhile. Drawn at random and never handed out twice in a process
+    (``benchmarks.procs.free_base_port``, the one implementation): a fixed scan order made
+    concurrent runs on one machine pick the same ports and collide at bind."""
+    return _free_base_port(4)
 
 
 async def wait_until(
