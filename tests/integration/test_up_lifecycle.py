@@ -386,3 +386,23 @@ def test_the_reason_of_a_death_is_the_tiers_own_line_else_the_last_error() -> No
     assert last_error_line("INFO a\nINFO b\n") == "INFO b"
     assert last_error_line("") == "nothing in its log"
     assert last_error_line("ERROR " + "x" * 500).endswith("...")
+
+
+async def test_a_tier_that_ignores_sigterm_is_killed_and_up_says_so(tmp_path: Path) -> None:
+    """A stopped (SIGSTOP) plant cannot act on SIGTERM: at the grace period its group gets
+    SIGKILL, and the plant's state is reported as not saved at stop."""
+    up = Up(free_base(), tmp_path / "var", "--no-board", "--speed", "5")
+    try:
+        await up.started()
+        os.kill(int((up.run_dir / "plant.pid").read_text()), signal.SIGSTOP)
+        code, seconds = await up.terminate()
+        print(f"\nstop with a frozen plant: {seconds:.2f} s; {up.lines[-1]}")
+        assert code == 0, up.lines
+        assert up.lines[-1].startswith("stopped in ") and up.lines[-1].endswith("; killed after 8 s: plant")
+        # "not saved at stop: plant state (plant killed); its last checkpoint is in ...", or
+        # "not saved: plant state (no state file ...)" when it was frozen before its first one.
+        assert any(line.startswith("not saved") and "plant state" in line for line in up.lines), up.lines
+        assert not any(line.startswith("saved: plant state") for line in up.lines), up.lines
+        await assert_nothing_left(up)
+    finally:
+        await up.cleanup()
