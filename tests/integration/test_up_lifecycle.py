@@ -120,13 +120,15 @@ class Up:
         await self.wait_line("started: ")
         return self
 
-    async def terminate(self, deadline_s: float = 30) -> tuple[int, float]:
-        """SIGTERM; the exit code and the seconds it took (information, not asserted)."""
+    async def terminate(
+        self, deadline_s: float = 30, sig: signal.Signals = signal.SIGTERM
+    ) -> tuple[int, float]:
+        """``sig``; the exit code and the seconds it took (information, not asserted)."""
         assert self.proc is not None
         t0 = time.monotonic()
         with_signal = self.proc.returncode is None
         if with_signal:
-            self.proc.send_signal(signal.SIGTERM)
+            self.proc.send_signal(sig)
         code = await asyncio.wait_for(self.proc.wait(), deadline_s)
         if self._reader is not None:
             await asyncio.wait_for(self._reader, 10)
@@ -158,7 +160,7 @@ async def assert_nothing_left(up: Up) -> None:
     assert up.pid_files() == []
 
 
-@pytest.mark.parametrize("moment", ["launch", "plant spawned", "plant up", "all up"])
+@pytest.mark.parametrize("moment", ["launch", "plant spawned", "plant up", "all up", "all up, SIGINT"])
 async def test_sigterm_at_any_moment_stops_every_tier_and_leaves_no_pid_file(
     tmp_path: Path, moment: str
 ) -> None:
@@ -169,16 +171,17 @@ async def test_sigterm_at_any_moment_stops_every_tier_and_leaves_no_pid_file(
             await wait_until((up.run_dir / "plant.pid").exists, 120, what="plant.pid")
         elif moment == "plant up":
             await up.wait_line("plant      opc.tcp://")
-        elif moment == "all up":
+        elif moment.startswith("all up"):
             await up.wait_line("started: ")
-        code, seconds = await up.terminate()
-        print(f"\nSIGTERM at {moment!r}: up exited {code} after {seconds:.2f} s; lines {up.lines}")
+        sig = signal.SIGINT if moment.endswith("SIGINT") else signal.SIGTERM
+        code, seconds = await up.terminate(sig=sig)
+        print(f"\n{sig.name} at {moment!r}: up exited {code} after {seconds:.2f} s; lines {up.lines}")
         # Right after launch the signal may come before Python has started at all: the default
         # action then ends `up` before it started anything (exit -15).
         assert code == 0 or (moment == "launch" and code == -signal.SIGTERM), up.lines
         if code == 0:
             assert up.lines[-1].startswith("stopped in "), up.lines
-            assert any(line.startswith("stopping (SIGTERM") for line in up.lines), up.lines
+            assert any(line.startswith(f"stopping ({sig.name}") for line in up.lines), up.lines
         await assert_nothing_left(up)
         assert not (up.run_dir / "up.pid").exists()
     finally:
