@@ -241,3 +241,30 @@ def test_watchdog_safe_state_is_per_pump() -> None:
 def test_default_safe_state_is_the_plant_watchdogs() -> None:
     assert SITE.plant.pumps[0].watchdog_safe_state is None
     assert SITE.plant.pump_safe_state("P1") == SITE.plant.watchdog.safe_state == "off"
+
+
+# ---- warm or cold (the runtime's choice) ----------------------------------------------------
+
+
+def test_warm_restart_only_when_the_file_exists_and_not_cold(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from plc_emulator.runtime import _warm_restore
+
+    retain = tmp_path / "plc-retain.json"
+    caplog.set_level("INFO", logger="plc_emulator.runtime")
+    assert not _warm_restore(PlcProgram(SITE), None, cold=False)
+    assert not _warm_restore(PlcProgram(SITE), retain, cold=False)  # configured, none there yet
+    assert "no retentive memory at" in caplog.text
+    persist.write_json_atomic(retain, _configured_program().retained())
+    cold = PlcProgram(SITE)
+    assert not _warm_restore(cold, retain, cold=True)
+    assert "cold start from the config (--cold)" in caplog.text
+    assert cold.scan_count == 0 and cold.loop("LIC1").sp_m == 0.4
+    warm = PlcProgram(SITE)
+    assert _warm_restore(warm, retain, cold=False)
+    assert "warm restart from" in caplog.text and "at scan 5, t = 4.0 s" in caplog.text
+    assert warm.loop("LIC1").sp_m == 0.45
+    retain.write_text("{not json", encoding="utf-8")
+    assert not _warm_restore(PlcProgram(SITE), retain, cold=False)  # broken: cold, and says so
+    assert "unreadable" in caplog.text
