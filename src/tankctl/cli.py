@@ -489,13 +489,14 @@ def up(
     )
     try:
         notes = stack.preflight(sorted({"localhost", "127.0.0.1", host, socket.gethostname()}))
+        stack.claim()
+        if fresh:
+            notes.append(stack.discard_saved())
     except PreflightError as e:
+        stack.release()  # an up.pid it wrote (never a running stack's)
         raise fail(str(e)) from None
     for line in notes:
         typer.echo(line)
-    stack.claim()
-    if fresh:
-        typer.echo(stack.discard_saved())
     # The board is an OPC UA client; its reconnect chatter (and that of the start-up probes)
     # must not scroll over the board or the event lines.
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import os
 import signal
 import socket
@@ -336,7 +337,11 @@ class Stack:
                     try:
                         s.bind(addr)
                     except OSError as e:
-                        what = "is already in use" if e.errno == 98 else f"cannot be bound: {e.strerror or e}"
+                        what = (
+                            "is already in use"
+                            if e.errno == errno.EADDRINUSE
+                            else f"cannot be bound: {e.strerror or e}"
+                        )
                         raise PreflightError(
                             f"port {tier.port} ({tier.name}) on {self.host} {what}; "
                             "nothing started (another stack? --base-port picks other ports)"
@@ -385,19 +390,28 @@ class Stack:
         return lines
 
     def claim(self) -> None:
-        """After the preflight: replace stale pid files, write ``up.pid``."""
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        for path in self.pid_files():
-            with contextlib.suppress(FileNotFoundError):
-                path.unlink()
-        self.pid_path.write_text(f"{os.getpid()}\n", encoding="utf-8")
+        """After the preflight: replace stale pid files, write ``up.pid`` (PreflightError when
+        the run directory cannot be written)."""
+        try:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            for path in self.pid_files():
+                with contextlib.suppress(FileNotFoundError):
+                    path.unlink()
+            self.pid_path.write_text(f"{os.getpid()}\n", encoding="utf-8")
+        except OSError as e:
+            raise PreflightError(
+                f"{self.log_dir}: cannot write the run directory: {e.strerror or e}"
+            ) from None
 
     def discard_saved(self) -> str:
         """``--fresh``: delete the plant's checkpoint and the PLC's retentive memory; one line."""
         gone = []
         for what, path in (("plant state", self.state_file), ("PLC retentive memory", self.retain_file)):
             if path.exists():
-                path.unlink()
+                try:
+                    path.unlink()
+                except OSError as e:
+                    raise PreflightError(f"--fresh: cannot discard {path}: {e.strerror or e}") from None
                 gone.append(f"{what} {path}")
         if not gone:
             return "fresh start from the config's initial state (there was no saved state)"
