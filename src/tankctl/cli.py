@@ -440,7 +440,7 @@ def up(
         str, typer.Option(help="realtime (wall clock x speed) or lockstep (as fast as possible).")
     ] = "realtime",
     board: Annotated[
-        bool, typer.Option(help="Show the live board (--no-board: endpoints and events only).")
+        bool, typer.Option(help="The live board on a terminal (piped or --no-board: one line per event).")
     ] = True,
     log_dir: Annotated[
         Path, typer.Option(help="Where the tiers' logs and the plant's state file go.")
