@@ -10,10 +10,8 @@ bound is 10 s, the tests allow 30 s and print the time they saw, as information 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import os
-import random
 import shutil
 import signal
 import socket
@@ -24,29 +22,13 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, secure, wait_until
+from helpers import ROOT, free_base_port, secure, wait_until
 from tankctl.up import last_error_line, running_pid
 from tanklab.ua import resolve
 
 CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
 SITE = "three_tank_energies_sim"
 pytestmark = pytest.mark.process
-
-
-def free_base() -> int:
-    """Like ``free_base_port``, from a random start: test sessions sharing the machine all scan
-    from 21000 up and would otherwise race for the same ports."""
-    for _ in range(200):
-        base = random.randrange(21000, 31000 - 3)
-        with contextlib.ExitStack() as socks:
-            try:
-                for k in range(3):
-                    s = socks.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM))
-                    s.bind(("127.0.0.1", base + k))
-            except OSError:
-                continue
-        return base
-    raise RuntimeError("no three consecutive free ports")
 
 
 def tanklab_pids(base: int) -> list[int]:
@@ -164,7 +146,7 @@ async def assert_nothing_left(up: Up) -> None:
 async def test_sigterm_at_any_moment_stops_every_tier_and_leaves_no_pid_file(
     tmp_path: Path, moment: str
 ) -> None:
-    up = Up(free_base(), tmp_path / "var", "--no-board", "--speed", "5")
+    up = Up(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
     try:
         await up.launch()
         if moment == "plant spawned":
@@ -191,7 +173,7 @@ async def test_sigterm_at_any_moment_stops_every_tier_and_leaves_no_pid_file(
 async def test_second_up_refuses_busy_ports_and_a_running_run_dir_and_the_first_keeps_running(
     tmp_path: Path,
 ) -> None:
-    base = free_base()
+    base = free_base_port()
     first = await Up(base, tmp_path / "a", "--no-board", "--speed", "5").started()
     try:
         pids = {p.name: p.read_text() for p in first.pid_files()}
@@ -210,7 +192,7 @@ async def test_second_up_refuses_busy_ports_and_a_running_run_dir_and_the_first_
         assert r.stderr.startswith(f"tankctl: port {base} (plant) on 127.0.0.1 is already in use"), r.stderr
         assert not (tmp_path / "b" / SITE).exists()
         # Other ports, the same run directory: refused, naming the running stack's pid file.
-        other = free_base()
+        other = free_base_port()
         while other <= base + 2 < other + 3 or base <= other + 2 < base + 3:
             other += 7
         r = up("--base-port", str(other), "--log-dir", str(tmp_path / "a"))
@@ -234,7 +216,7 @@ async def test_second_up_refuses_busy_ports_and_a_running_run_dir_and_the_first_
 
 async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> None:
     """Piped output without --no-board gives the line mode; stale pid files are replaced."""
-    base = free_base()
+    base = free_base_port()
     run_dir = tmp_path / "var" / SITE
     run_dir.mkdir(parents=True)
     for name in ("up.pid", "plant.pid"):
@@ -295,7 +277,7 @@ async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> 
 
 async def test_a_tier_dying_during_start_up_is_reported_with_the_reason_from_its_log(tmp_path: Path) -> None:
     """The PLC's port is taken after the preflight (once the plant is up): the PLC cannot bind."""
-    base = free_base()
+    base = free_base_port()
     up = Up(base, tmp_path / "var", "--no-board", "--speed", "5")
     blocker = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     try:
@@ -320,7 +302,7 @@ async def test_a_tier_dying_during_start_up_is_reported_with_the_reason_from_its
 
 
 async def test_a_tier_dying_later_is_reported_and_the_stack_stopped(tmp_path: Path) -> None:
-    up = Up(free_base(), tmp_path / "var", "--no-board", "--speed", "5")
+    up = Up(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
     try:
         await up.started()
         os.kill(int((up.run_dir / "plc.pid").read_text()), signal.SIGKILL)
@@ -346,7 +328,7 @@ def run_up(*args: str, env: dict[str, str] | None = None) -> subprocess.Complete
 def test_preflight_refuses_a_broken_config_and_a_home_without_login(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text(CONFIG.read_text().replace("scan_period_s:", "scan_period_sec:", 1))
-    base = free_base()
+    base = free_base_port()
     r = run_up("--config", str(bad), "--base-port", str(base), "--log-dir", str(tmp_path / "var"))
     assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
     assert r.stderr.count("\n") == 1 and r.stderr.startswith(f"tankctl: {bad}"), r.stderr
@@ -394,7 +376,7 @@ def test_the_reason_of_a_death_is_the_tiers_own_line_else_the_last_error() -> No
 async def test_a_tier_that_ignores_sigterm_is_killed_and_up_says_so(tmp_path: Path) -> None:
     """A stopped (SIGSTOP) plant cannot act on SIGTERM: at the grace period its group gets
     SIGKILL, and the plant's state is reported as not saved at stop."""
-    up = Up(free_base(), tmp_path / "var", "--no-board", "--speed", "5")
+    up = Up(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
     try:
         await up.started()
         os.kill(int((up.run_dir / "plant.pid").read_text()), signal.SIGSTOP)
