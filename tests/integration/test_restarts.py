@@ -273,9 +273,11 @@ async def test_plc_warm_restart_resumes_settings_model_time_and_output_then_the_
         deviations.append(max(abs(h - 0.41) for h in window))
         old, new = trace_rows(s.traces()[-2]), trace_rows(s.traces()[-1])
         # Scan counter and model time continue: the first scan after the restart is the next
-        # one after the last retained scan (a SIGKILL may lose the file write of the last one).
+        # one after the last retained scan (SIGTERM stores the last scan; a SIGKILL may lose the
+        # write of the last one or two, still queued).
         assert new[0]["scan"] == retained["scan"] + 1 and new[0]["t_s"] == retained["t_s"] + 1.0
-        assert old[-1]["scan"] in (retained["scan"], retained["scan"] + 1)
+        lost = old[-1]["scan"] - retained["scan"]
+        assert lost == 0 if how == "SIGTERM" else 0 <= lost <= 2, (how, old[-1], retained["scan"])
         assert new[0]["scan"] <= old[-1]["scan"] + 1
         # Bumpless: P1's first command after the restart is its last one before, plus at most
         # one scan's ordinary PI move (here well under 1 % of the 1.2e-4 m^3/s range).

@@ -268,3 +268,32 @@ def test_warm_restart_only_when_the_file_exists_and_not_cold(
     retain.write_text("{not json", encoding="utf-8")
     assert not _warm_restore(PlcProgram(SITE), retain, cold=False)  # broken: cold, and says so
     assert "unreadable" in caplog.text
+
+
+async def test_retained_store_writes_off_the_scan_and_the_latest_state_wins(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from plc_emulator import runtime
+
+    path = tmp_path / "plc-retain.json"
+    store = runtime.RetainedStore(path)
+    for scan in range(1, 6):  # five snapshots before the writer ran: only the latest is written
+        store.offer({"scan": scan})
+    await store.close()
+    assert persist.read_json(path) == {"scan": 5}
+    assert store.writes == 1 and store.stored == {"scan": 5}
+    store.offer({"scan": 5})  # unchanged: nothing to write
+    await store.close()
+    assert store.writes == 1
+
+    def full(p: Path, data: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(runtime, "write_json_atomic", full)
+    store.offer({"scan": 6})
+    await store.close()
+    assert persist.read_json(path) == {"scan": 5} and store.stored == {"scan": 5}  # the old copy stays
+    monkeypatch.undo()
+    store.offer({"scan": 6})  # the next offer tries again
+    await store.close()
+    assert persist.read_json(path) == {"scan": 6}
