@@ -68,6 +68,7 @@ from plc_emulator.pid import Pid, PidConfig, PidGains
 from plc_emulator.tuning import nlpi_gains
 from tanklab.config import LoopSpec, PidGainsSpec, SiteConfig
 from tanklab.enums import GainSource, LoopMode
+from tanklab.tags import link_status_paths
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -81,8 +82,10 @@ RUNTIME_OWNED_TAGS = (
     "PLC.Status.Overruns",
     "PLC.Supervisor.Heartbeat",
     "PLC.Supervisor.Timeout",
+    *link_status_paths("PLC.Status.PlantLink").values(),
 )
-"""PLC variables the runtime publishes, not :meth:`PlcProgram.values` (plus ``PLC.LIC*.Block``)."""
+"""PLC variables the runtime publishes, not :meth:`PlcProgram.values` (plus ``PLC.LIC*.Block``):
+its scan timing, the supervisor's heartbeat and timeout, and its field link's status."""
 
 _TIME_EPS_SCANS = 1e-6
 """Tolerance on model-time comparisons, in scan periods: model time accumulated as a sum of Ts

@@ -119,6 +119,10 @@ def test_values_publish_exactly_the_program_owned_plc_tags(path: Path) -> None:
         "PLC.Status.Overruns",
         "PLC.Supervisor.Heartbeat",
         "PLC.Supervisor.Timeout",
+        "PLC.Status.PlantLink.Attempts",
+        "PLC.Status.PlantLink.Connects",
+        "PLC.Status.PlantLink.LastError",
+        "PLC.Status.PlantLink.RetryDelay",
     }
     assert set(program.values()) == expected  # before the first scan too (the server's initial publish)
     levels = [t.initial_level_m for t in site.plant.tanks]
