@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import asyncio
 import os
+import signal
 import socket
+import subprocess
 import sys
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
+import yaml
 from asyncua import Client
 
 if str(Path(__file__).resolve().parents[1]) not in sys.path:  # benchmarks/ lives at the root
@@ -40,6 +43,17 @@ def free_base_port() -> int:
     (``benchmarks.procs.free_base_port``, the one implementation): a fixed scan order made
     concurrent runs on one machine pick the same ports and collide at bind."""
     return _free_base_port(4)
+
+
+def stop_process(proc: subprocess.Popen[str], deadline_s: float = 20.0) -> None:
+    """SIGTERM a process this test started, SIGKILL after ``deadline_s`` (bounded), and reap it."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=deadline_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 async def wait_until(
@@ -151,3 +165,132 @@ async def secure(
     client = Client(url, timeout=timeout_s)
     await secure_client(client, identity(user, tier=tier))
     return client
+
+
+def _site_name(config: Path) -> str:
+    """A site config's run-directory name (its ``name``, as ``tankctl up`` names it)."""
+    return str(yaml.safe_load(config.read_text(encoding="utf-8"))["name"])
+
+
+def tanklab_pids(base: int) -> list[int]:
+    """Live tankctl processes bound (by their arguments) to the ports base..base+2."""
+    ports = {str(base + k) for k in range(3)}
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state == "Z" or "tankctl" not in argv:
+            continue
+        flags = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--port", "--base-port")}
+        if flags & ports:
+            found.append(int(entry.name))
+    return found
+
+
+class UpProcess:
+    """`tankctl up` as a subprocess (own session, output piped, so in line mode); every line it
+    prints is kept. ``start`` waits (bounded) for its ``started:`` line, ``stop`` sends SIGTERM and
+    returns the exit code, ``cleanup`` (on every path) kills whatever of the run is left."""
+
+    def __init__(
+        self,
+        base: int,
+        log_dir: Path,
+        *extra: str,
+        config: Path | None = None,
+        env: dict[str, str] | None = None,
+    ) -> None:
+        config = config or ROOT / "configs/three_tank_energies_sim.yaml"
+        self.base = base
+        self.log_dir = log_dir
+        self.env = env
+        self.run_dir = log_dir / _site_name(config)
+        self.args = ["up", "--config", str(config), "--base-port", str(base), "--log-dir", str(log_dir)]
+        self.args += list(extra)
+        self.proc: asyncio.subprocess.Process | None = None
+        self.lines: list[str] = []
+        self._reader: asyncio.Task[None] | None = None
+
+    async def launch(self) -> UpProcess:
+        self.proc = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "tankctl",
+            *self.args,
+            cwd=ROOT,
+            start_new_session=True,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT,
+            env=self.env,
+        )
+        self._reader = asyncio.create_task(self._read())
+        return self
+
+    async def _read(self) -> None:
+        assert self.proc is not None and self.proc.stdout is not None
+        while line := await self.proc.stdout.readline():
+            self.lines.append(line.decode().rstrip("\n"))
+
+    def said(self, start: str) -> bool:
+        return any(line.startswith(start) for line in self.lines)
+
+    async def wait_line(self, start: str, deadline_s: float = 120) -> None:
+        def seen() -> bool:
+            if self.said(start):
+                return True
+            ended = self.proc is not None and self.proc.returncode is not None
+            if ended and self._reader is not None and self._reader.done():
+                raise AssertionError(f"tankctl up exited early: {self.lines}")
+            return False
+
+        await wait_until(seen, deadline_s, what=f"a line {start!r} from tankctl up")
+
+    async def started(self) -> UpProcess:
+        await self.launch()
+        await self.wait_line("started: ")
+        return self
+
+    async def terminate(
+        self, deadline_s: float = 30, sig: signal.Signals = signal.SIGTERM
+    ) -> tuple[int, float]:
+        """``sig``; the exit code and the seconds it took (information, not asserted)."""
+        assert self.proc is not None
+        t0 = time.monotonic()
+        with_signal = self.proc.returncode is None
+        if with_signal:
+            self.proc.send_signal(sig)
+        code = await asyncio.wait_for(self.proc.wait(), deadline_s)
+        if self._reader is not None:
+            await asyncio.wait_for(self._reader, 10)
+        return code, time.monotonic() - t0
+
+    async def cleanup(self) -> None:
+        """On every path: nothing of this run stays (SIGKILL to what is left, then assert)."""
+        if self.proc is not None and self.proc.returncode is None:
+            self.proc.kill()
+            await self.proc.wait()
+        if self._reader is not None and not self._reader.done():
+            self._reader.cancel()
+        for pid in tanklab_pids(self.base):
+            os.kill(pid, signal.SIGKILL)
+
+    async def start(self) -> UpProcess:
+        """Launch and wait for the ``started:`` line (every endpoint serves)."""
+        return await self.started()
+
+    async def stop(self, deadline_s: float = 60) -> int:
+        """SIGTERM (if still running); the exit code."""
+        code, _ = await self.terminate(deadline_s)
+        return code
+
+    def pid(self, tier: str) -> int:
+        """The pid in a tier's pid file."""
+        return int((self.run_dir / f"{tier}.pid").read_text())
+
+    def pid_files(self) -> list[Path]:
+        return sorted(self.run_dir.glob("*.pid"))

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from asyncua import Client
 
-from helpers import ROOT, TierProcess, free_base_port, secure, wait_until
+from helpers import ROOT, TierProcess, UpProcess, free_base_port, secure, wait_until
 from tanklab.enums import GainSource, LoopMode
 from tanklab.ua import resolve
 
@@ -39,66 +39,6 @@ def tankctl(*args: str, base: int, env: dict[str, str] | None = None) -> subproc
     )
 
 
-class Up:
-    """`tankctl up --no-board` in a subprocess (its own session, stopped with SIGTERM)."""
-
-    def __init__(
-        self, config: Path, base: int, log_dir: Path, *extra: str, env: dict[str, str] | None = None
-    ) -> None:
-        self.env = env
-        self.args = [
-            "up",
-            "--config",
-            str(config),
-            "--base-port",
-            str(base),
-            "--no-board",
-            "--log-dir",
-            str(log_dir),
-            *extra,
-        ]
-        self.log_dir = log_dir
-        self.proc: asyncio.subprocess.Process | None = None
-        self.lines: list[str] = []
-        self.other: list[str] = []
-
-    async def start(self) -> Up:
-        self.proc = await asyncio.create_subprocess_exec(
-            sys.executable,
-            "-m",
-            "tankctl",
-            *self.args,
-            cwd=ROOT,
-            start_new_session=True,
-            stdout=asyncio.subprocess.PIPE,
-            stderr=asyncio.subprocess.STDOUT,
-            env=self.env,
-        )
-        assert self.proc.stdout is not None
-        while len(self.lines) < 3:
-            line = (await asyncio.wait_for(self.proc.stdout.readline(), 90)).decode()
-            if not line:
-                raise AssertionError(f"tankctl up exited early: {''.join(self.other + self.lines)}")
-            if "opc.tcp://" in line:
-                self.lines.append(line)
-            else:
-                self.other.append(line)
-        return self
-
-    def pid(self, tier: str, site: str) -> int:
-        return int((self.log_dir / site / f"{tier}.pid").read_text())
-
-    async def stop(self) -> int | None:
-        if self.proc is None or self.proc.returncode is not None:
-            return self.proc.returncode if self.proc else None
-        self.proc.send_signal(signal.SIGTERM)
-        try:
-            return await asyncio.wait_for(self.proc.wait(), 60)
-        except TimeoutError:
-            self.proc.kill()
-            return await self.proc.wait()
-
-
 async def value(client: Client, path: str):
     return await (await resolve(client, [path]))[path].read_value()
 
@@ -110,7 +50,7 @@ async def model_time(client: Client) -> float:
 @pytest.fixture
 async def lockstep_stack(tmp_path: Path):
     base = free_base_port()
-    up = await Up(CONFIG, base, tmp_path / "var", "--clock", "lockstep").start()
+    up = await UpProcess(base, tmp_path / "var", "--no-board", "--clock", "lockstep", config=CONFIG).start()
     async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
         yield base, plc, up
     assert await up.stop() == 0
@@ -160,12 +100,12 @@ async def test_first_run_provisions_a_secured_stack_and_the_tour_works(tmp_path:
     env = {k: v for k, v in os.environ.items() if not k.startswith("TANKLAB_")}
     env["TANKLAB_HOME"] = str(home)
     base = free_base_port()
-    up = await Up(CONFIG, base, tmp_path / "var", "--speed", "5", env=env).start()
+    up = await UpProcess(base, tmp_path / "var", "--no-board", "--speed", "5", config=CONFIG, env=env).start()
     try:
-        assert any("first run: created the PKI" in line for line in up.other), up.other
+        assert any("first run: created the PKI" in line for line in up.lines), up.lines
         creds = home / "credentials"
         assert creds.stat().st_mode & 0o777 == 0o600
-        assert "password=" not in "".join(up.other + up.lines)  # the password is never printed
+        assert "password=" not in "".join(up.lines)  # the password is never printed
         r = tankctl("setpoint", "LIC1", "0.45", base=base, env=env)
         assert r.returncode == 0 and r.stdout.startswith("PLC.LIC1.SP = 0.45 m (was 0.4 m)"), r.stderr
         r = tankctl("leak", "T1", "0.3", base=base, env=env)
@@ -186,8 +126,8 @@ async def _near(client: Client, path: str, sp: float, tol: float) -> bool:
 
 async def test_up_exits_nonzero_when_a_tier_dies_and_stops_the_others(tmp_path: Path) -> None:
     base = free_base_port()
-    up = await Up(CONFIG, base, tmp_path / "var").start()
-    pids = {t: up.pid(t, "three_tank_energies_sim") for t in ("plant", "plc", "supervisor")}
+    up = await UpProcess(base, tmp_path / "var", "--no-board", config=CONFIG).start()
+    pids = {t: up.pid(t) for t in ("plant", "plc", "supervisor")}
     os.kill(pids["plc"], signal.SIGKILL)
     assert up.proc is not None
     code = await asyncio.wait_for(up.proc.wait(), 60)
@@ -211,12 +151,12 @@ async def test_plant_killed_and_restarted_by_up_everything_recovers(tmp_path: Pa
     config = tmp_path / "restart.yaml"
     config.write_text(yaml.safe_dump(data))
     base = free_base_port()
-    up = await Up(config, base, tmp_path / "var", "--speed", "20").start()
+    up = await UpProcess(base, tmp_path / "var", "--no-board", "--speed", "20", config=config).start()
     try:
         async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
             await wait_until(lambda: _near(plc, "PLC.LIC1.PV", 0.4, 0.02), 90, what="T1 near 0.4 m")
-            plc_pid = up.pid("plc", "three_tank_energies_sim")
-            os.kill(up.pid("plant", "three_tank_energies_sim"), signal.SIGKILL)
+            plc_pid = up.pid("plc")
+            os.kill(up.pid("plant"), signal.SIGKILL)
 
             async def io_lost() -> bool:
                 return await value(plc, "PLC.Status.IoHealthy") is False
@@ -233,7 +173,7 @@ async def test_plant_killed_and_restarted_by_up_everything_recovers(tmp_path: Pa
                 return await model_time(plc) - t_back > 60 and await _near(plc, "PLC.LIC1.PV", 0.4, 0.02)
 
             await wait_until(regulating, 60, what="T1 regulated again")
-            assert up.pid("plc", "three_tank_energies_sim") == plc_pid, "the PLC must not have been restarted"
+            assert up.pid("plc") == plc_pid, "the PLC must not have been restarted"
             assert up.proc is not None and up.proc.returncode is None
     finally:
         assert await up.stop() == 0
@@ -344,7 +284,7 @@ async def test_two_lockstep_runs_with_the_mpc_writing_every_scan_give_identical_
 
 async def test_realtime_speed_20_smoke(tmp_path: Path) -> None:
     base = free_base_port()
-    up = await Up(CONFIG, base, tmp_path / "var", "--speed", "20").start()
+    up = await UpProcess(base, tmp_path / "var", "--no-board", "--speed", "20", config=CONFIG).start()
     try:
         async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as plc:
             await wait_until(

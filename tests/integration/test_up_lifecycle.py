@@ -17,117 +17,17 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, free_base_port, secure, wait_until
+from helpers import ROOT, UpProcess, free_base_port, secure, tanklab_pids, wait_until
 from tankctl.up import last_error_line, running_pid
 from tanklab.ua import resolve
 
 CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
 SITE = "three_tank_energies_sim"
 pytestmark = pytest.mark.process
-
-
-def tanklab_pids(base: int) -> list[int]:
-    """Live tankctl processes bound (by their arguments) to the ports base..base+2."""
-    ports = {str(base + k) for k in range(3)}
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if state == "Z" or "tankctl" not in argv:
-            continue
-        flags = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--port", "--base-port")}
-        if flags & ports:
-            found.append(int(entry.name))
-    return found
-
-
-class Up:
-    """`tankctl up` as a subprocess (own session, output piped); every line it prints is kept."""
-
-    def __init__(self, base: int, log_dir: Path, *extra: str) -> None:
-        self.base = base
-        self.log_dir = log_dir
-        self.run_dir = log_dir / SITE
-        self.args = ["up", "--config", str(CONFIG), "--base-port", str(base), "--log-dir", str(log_dir)]
-        self.args += list(extra)
-        self.proc: asyncio.subprocess.Process | None = None
-        self.lines: list[str] = []
-        self._reader: asyncio.Task[None] | None = None
-
-    async def launch(self) -> Up:
-        self.proc = await asyncio.create_subprocess_exec(
-            sys.executable,
-            "-m",
-            "tankctl",
-            *self.args,
-            cwd=ROOT,
-            start_new_session=True,
-            stdout=asyncio.subprocess.PIPE,
-            stderr=asyncio.subprocess.STDOUT,
-        )
-        self._reader = asyncio.create_task(self._read())
-        return self
-
-    async def _read(self) -> None:
-        assert self.proc is not None and self.proc.stdout is not None
-        while line := await self.proc.stdout.readline():
-            self.lines.append(line.decode().rstrip("\n"))
-
-    def said(self, start: str) -> bool:
-        return any(line.startswith(start) for line in self.lines)
-
-    async def wait_line(self, start: str, deadline_s: float = 120) -> None:
-        def seen() -> bool:
-            if self.said(start):
-                return True
-            ended = self.proc is not None and self.proc.returncode is not None
-            if ended and self._reader is not None and self._reader.done():
-                raise AssertionError(f"tankctl up exited early: {self.lines}")
-            return False
-
-        await wait_until(seen, deadline_s, what=f"a line {start!r} from tankctl up")
-
-    async def started(self) -> Up:
-        await self.launch()
-        await self.wait_line("started: ")
-        return self
-
-    async def terminate(
-        self, deadline_s: float = 30, sig: signal.Signals = signal.SIGTERM
-    ) -> tuple[int, float]:
-        """``sig``; the exit code and the seconds it took (information, not asserted)."""
-        assert self.proc is not None
-        t0 = time.monotonic()
-        with_signal = self.proc.returncode is None
-        if with_signal:
-            self.proc.send_signal(sig)
-        code = await asyncio.wait_for(self.proc.wait(), deadline_s)
-        if self._reader is not None:
-            await asyncio.wait_for(self._reader, 10)
-        return code, time.monotonic() - t0
-
-    async def cleanup(self) -> None:
-        """On every path: nothing of this run stays (SIGKILL to what is left, then assert)."""
-        if self.proc is not None and self.proc.returncode is None:
-            self.proc.kill()
-            await self.proc.wait()
-        if self._reader is not None and not self._reader.done():
-            self._reader.cancel()
-        for pid in tanklab_pids(self.base):
-            os.kill(pid, signal.SIGKILL)
-
-    def pid_files(self) -> list[Path]:
-        return sorted(self.run_dir.glob("*.pid"))
 
 
 def gone_pid() -> int:
@@ -137,7 +37,7 @@ def gone_pid() -> int:
     return proc.pid
 
 
-async def assert_nothing_left(up: Up) -> None:
+async def assert_nothing_left(up: UpProcess) -> None:
     await wait_until(lambda: not tanklab_pids(up.base), 10, what="no tankctl process of the run")
     assert up.pid_files() == []
 
@@ -146,7 +46,7 @@ async def assert_nothing_left(up: Up) -> None:
 async def test_sigterm_at_any_moment_stops_every_tier_and_leaves_no_pid_file(
     tmp_path: Path, moment: str
 ) -> None:
-    up = Up(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
+    up = UpProcess(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
     try:
         await up.launch()
         if moment == "plant spawned":
@@ -174,7 +74,7 @@ async def test_second_up_refuses_busy_ports_and_a_running_run_dir_and_the_first_
     tmp_path: Path,
 ) -> None:
     base = free_base_port()
-    first = await Up(base, tmp_path / "a", "--no-board", "--speed", "5").started()
+    first = await UpProcess(base, tmp_path / "a", "--no-board", "--speed", "5").started()
     try:
         pids = {p.name: p.read_text() for p in first.pid_files()}
         stamps = {p.name: p.stat().st_mtime_ns for p in first.pid_files()}
@@ -221,7 +121,7 @@ async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> 
     run_dir.mkdir(parents=True)
     for name in ("up.pid", "plant.pid"):
         (run_dir / name).write_text(f"{gone_pid()}\n")
-    up = Up(base, tmp_path / "var", "--speed", "5")
+    up = UpProcess(base, tmp_path / "var", "--speed", "5")
     try:
         await up.started()
         ops = [sys.executable, "-m", "tankctl"]
@@ -254,7 +154,7 @@ async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> 
     assert events == kinds, up.lines
     assert up.lines[-1].startswith("stopped in "), up.lines
 
-    fresh = Up(base, tmp_path / "var", "--no-board", "--speed", "5", "--fresh")
+    fresh = UpProcess(base, tmp_path / "var", "--no-board", "--speed", "5", "--fresh")
     try:
         await fresh.started()
         assert fresh.lines[0] == (
@@ -278,7 +178,7 @@ async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> 
 async def test_a_tier_dying_during_start_up_is_reported_with_the_reason_from_its_log(tmp_path: Path) -> None:
     """The PLC's port is taken after the preflight (once the plant is up): the PLC cannot bind."""
     base = free_base_port()
-    up = Up(base, tmp_path / "var", "--no-board", "--speed", "5")
+    up = UpProcess(base, tmp_path / "var", "--no-board", "--speed", "5")
     blocker = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     try:
         await up.launch()
@@ -302,7 +202,7 @@ async def test_a_tier_dying_during_start_up_is_reported_with_the_reason_from_its
 
 
 async def test_a_tier_dying_later_is_reported_and_the_stack_stopped(tmp_path: Path) -> None:
-    up = Up(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
+    up = UpProcess(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
     try:
         await up.started()
         os.kill(int((up.run_dir / "plc.pid").read_text()), signal.SIGKILL)
@@ -376,7 +276,7 @@ def test_the_reason_of_a_death_is_the_tiers_own_line_else_the_last_error() -> No
 async def test_a_tier_that_ignores_sigterm_is_killed_and_up_says_so(tmp_path: Path) -> None:
     """A stopped (SIGSTOP) plant cannot act on SIGTERM: at the grace period its group gets
     SIGKILL, and the plant's state is reported as not saved at stop."""
-    up = Up(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
+    up = UpProcess(free_base_port(), tmp_path / "var", "--no-board", "--speed", "5")
     try:
         await up.started()
         os.kill(int((up.run_dir / "plant.pid").read_text()), signal.SIGSTOP)

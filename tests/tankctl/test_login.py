@@ -18,7 +18,6 @@ import asyncio
 import json
 import os
 import select
-import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -29,7 +28,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 
-from helpers import ROOT, TEST_PASSWORDS, free_port, identity, session_home
+from helpers import ROOT, TEST_PASSWORDS, free_port, identity, session_home, stop_process
 from tanklab.ua_security import ClientIdentity, secure_client
 from tanklab.users import Credentials
 
@@ -84,12 +83,7 @@ def plc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plc]:
     try:
         yield Plc(f"opc.tcp://127.0.0.1:{port}/tanklab/plc", audit_dir / "plc.log")
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc)
 
 
 @dataclass

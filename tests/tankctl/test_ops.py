@@ -17,7 +17,6 @@ import json
 import os
 import re
 import select
-import signal
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -29,7 +28,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, wait_until
+from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, stop_process, wait_until
 from tankctl.ops import TIERS, UsageError, level_bar, register, resolve_endpoints, sparkline
 from tanklab.config import load_site
 from tanklab.enums import LoopMode, SupervisorMode
@@ -68,16 +67,6 @@ def _start(*args: str, deadline_s: float = 30.0) -> subprocess.Popen[str]:
     return proc
 
 
-def _stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 @dataclass
 class Stack:
     base: int
@@ -101,7 +90,7 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
         yield s
     finally:
         for p in reversed(procs):
-            _stop(p)
+            stop_process(p)
 
 
 # --------------------------------------------------------------------------------------------
