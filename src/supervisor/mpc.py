@@ -1555,7 +1555,7 @@ class MpcController:
         -------
         MpcResult
         """
-        y_, u_prev_, r_ = self._step_inputs(y, u_prev, r)
+        y_, u_prev_, r_ = self._step_inputs(y, self._model.n_measured, "y", u_prev, r)
         y_dev = y_ - self._y_op
         if self._est_subset:
             y_dev = y_dev[self._est_rows]
@@ -1564,25 +1564,26 @@ class MpcController:
         return self._solve(est.x, est.disturbance, r_, u_prev_)
 
     def _step_inputs(
-        self, y: ArrayLike, u_prev: ArrayLike, r: ArrayLike
+        self, v: ArrayLike, size: int, name: str, u_prev: ArrayLike, r: ArrayLike
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """y, u(-1) and r checked (as :func:`_vector` and :meth:`_reference`; only read, never
+        """A vector ``v`` of ``size`` (y for :meth:`step`, x for :meth:`plan`; ``name`` in the
+        error), u(-1) and r checked (as :func:`_vector` and :meth:`_reference`; only read, never
         kept, so float vectors come back as they are). The usual case, three float vectors of
         the right shapes, is checked for finite values in one pass."""
-        ny, m, nz = self._model.n_measured, self._m, self._nz
+        m, nz = self._m, self._nz
         if (
-            type(y) is np.ndarray
+            type(v) is np.ndarray
             and type(u_prev) is np.ndarray
             and type(r) is np.ndarray
-            and y.dtype == u_prev.dtype == r.dtype == np.float64
-            and y.shape == (ny,)
+            and v.dtype == u_prev.dtype == r.dtype == np.float64
+            and v.shape == (size,)
             and u_prev.shape == (m,)
             and r.shape == (nz,)
-            and np.isfinite(np.concatenate((y, u_prev, r))).all()
+            and np.isfinite(np.concatenate((v, u_prev, r))).all()
         ):
-            return y, u_prev, r
+            return v, u_prev, r
         return (
-            _vector(y, ny, "y", copy=False),
+            _vector(v, size, name, copy=False),
             _vector(u_prev, m, "u_prev", copy=False),
             self._reference(r),
         )
@@ -1617,23 +1618,7 @@ class MpcController:
             d_ = disturbance
         else:
             d_ = _vector(disturbance, self._n_eta, "disturbance")
-        # the usual case, float vectors of the right shapes, checked for finite values in one pass
-        # (only read, never kept, as in step)
-        if (
-            type(x) is np.ndarray
-            and type(u_prev) is np.ndarray
-            and type(r) is np.ndarray
-            and x.dtype == u_prev.dtype == r.dtype == np.float64
-            and x.shape == (self._n,)
-            and u_prev.shape == (self._m,)
-            and r.shape == (self._nz,)
-            and np.isfinite(np.concatenate((x, u_prev, r))).all()
-        ):
-            x_, u_prev_, r_ = x, u_prev, r
-        else:
-            x_ = _vector(x, self._n, "x", copy=False)
-            u_prev_ = _vector(u_prev, self._m, "u_prev", copy=False)
-            r_ = self._reference(r)
+        x_, u_prev_, r_ = self._step_inputs(x, self._n, "x", u_prev, r)
         return self._solve(x_ - self._model.x_op, d_, r_, u_prev_)
 
     def correct(
