@@ -25,10 +25,10 @@ from typing import Any
 from asyncua import ua
 
 from plc_emulator.program import GainStatus, PlcProgram
-from plc_emulator.writes import HEARTBEAT_PATH, apply_write
+from plc_emulator.writes import apply_write
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource
-from tanklab.tags import Role, Tag, plc_tags, tags_by_path
+from tanklab.tags import HEARTBEAT_PATH, Role, Tag, plc_tags, tags_by_path
 from tanklab.ua import CURRENT_USER, MethodHandler, Publisher, TankUser
 from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 

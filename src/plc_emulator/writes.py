@@ -13,8 +13,7 @@ from typing import Any
 
 from plc_emulator.program import PlcProgram
 from tanklab.enums import LoopMode
-
-HEARTBEAT_PATH = "PLC.Supervisor.Heartbeat"
+from tanklab.tags import HEARTBEAT_PATH
 
 
 def apply_write(program: PlcProgram, path: str, value: Any) -> bool:

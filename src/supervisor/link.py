@@ -19,7 +19,7 @@ from supervisor.cycle import PlcSnapshot
 from supervisor.port import PlcRequest
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
-from tanklab.tags import plc_tags, tags_by_path
+from tanklab.tags import HEARTBEAT_PATH, plc_tags, tags_by_path
 from tanklab.ua import ClientSetup, Link
 
 log = logging.getLogger(__name__)
@@ -34,7 +34,7 @@ class PlcLink:
         self.tanks = site.tank_names
         tags = tags_by_path(plc_tags(site))
         self.read_paths = PlcSnapshot.read_paths(self.loops, self.tanks)
-        writes = ["PLC.Supervisor.Heartbeat"]
+        writes = [HEARTBEAT_PATH]
         writes += [f"PLC.{lp}.{item}" for lp in self.loops for item in ("RemoteMV", "Mode", "SetGains")]
         self.link = Link(
             url,

@@ -32,8 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from supervisor.cycle import Actions, PlcSnapshot, SupervisorCore
+from tanklab.tags import HEARTBEAT_PATH
 
-HEARTBEAT_PATH = "PLC.Supervisor.Heartbeat"
 HEARTBEAT_MODULO = 2**32
 """``PLC.Supervisor.Heartbeat`` is a UInt32: the count wraps."""
 

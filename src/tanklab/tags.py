@@ -25,6 +25,9 @@ from tanklab.enums import GainSource, LoopMode, MpcStatus, SensorFault, Supervis
 NAMESPACE_URI = "urn:tanklab"
 """Namespace URI of every tanklab node; clients look its index up, never hard-code it."""
 
+HEARTBEAT_PATH = "PLC.Supervisor.Heartbeat"
+"""The supervisor's heartbeat (UInt32): written every scan it acknowledges, checked by the PLC."""
+
 APPLICATION_URIS = {
     "plant": "urn:tanklab:plant",
     "plc": "urn:tanklab:plc",
@@ -545,7 +548,7 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         eu_range=(0.0, 1e12),
     )
     b.var(
-        "PLC.Supervisor.Heartbeat",
+        HEARTBEAT_PATH,
         DataType.UINT32,
         "Written by the supervisor every cycle (any change counts as alive).",
         writers=frozenset({Role.SUPERVISOR}),

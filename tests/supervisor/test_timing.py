@@ -19,10 +19,11 @@ from hypothesis import strategies as st
 
 from plant_sim.linearize import discretize_zoh
 from supervisor.cycle import Actions, PlcSnapshot, SupervisorCore
-from supervisor.port import HEARTBEAT_PATH, PlcRequest, SupervisorDriver
+from supervisor.port import PlcRequest, SupervisorDriver
 from supervisor.timing import ScanPredictor
 from tanklab.config import SiteConfig, site_from_mapping
 from tanklab.enums import LoopMode, SupervisorMode
+from tanklab.tags import HEARTBEAT_PATH
 
 ROOT = Path(__file__).resolve().parents[2]
 
