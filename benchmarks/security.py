@@ -101,7 +101,7 @@ from tanklab.enums import LoopMode
 from tanklab.home import SecurityHome
 from tanklab.home import provision as provision_home
 from tanklab.tags import DataType, Role, Tag, plc_tags
-from tanklab.ua import namespace_index
+from tanklab.ua import namespace_index, new_client
 from tanklab.ua_security import LIMITS, ClientIdentity, secure_client
 from tanklab.users import Credentials, load_credentials
 
@@ -172,7 +172,7 @@ def provision(root: Path) -> Logins:
 @contextlib.asynccontextmanager
 async def session(url: str, logins: Logins, who: str, timeout_s: float = 10.0) -> AsyncIterator[Client]:
     """A connected, encrypted and authenticated client of ``url`` acting as ``who``."""
-    client = Client(url, timeout=timeout_s)
+    client = new_client(url, timeout_s)
     await secure_client(client, logins.identity(who))
     async with client:
         yield client
@@ -1572,7 +1572,7 @@ class Probe:
 
     async def read(self) -> dict[str, Any] | None:
         if self.client is None:
-            client = Client(self.url, timeout=2.0)
+            client = new_client(self.url, 2.0)
             try:
                 await asyncio.wait_for(secure_client(client, self.logins.identity(self.who)), 4.0)
                 await asyncio.wait_for(client.connect(), 4.0)
@@ -1768,7 +1768,7 @@ async def login_storm_async(n: int = 48, concurrency: int = 8) -> dict[str, Any]
     async with stack(FLOOD_SPEED) as st, session(st.plc_url, st.logins, "engineer") as watcher:
 
         async def failed_login(k: int) -> None:
-            client = Client(st.plc_url, timeout=10.0)
+            client = new_client(st.plc_url, 10.0)
             who = ClientIdentity(st.logins.home, "cli", Credentials(f"nobody{k}", "not-the-password"))
             await secure_client(client, who)
             with contextlib.suppress(Exception):

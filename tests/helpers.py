@@ -21,6 +21,7 @@ from benchmarks.procs import free_base_port as _free_base_port
 
 from tanklab.home import SecurityHome
 from tanklab.tags import Role
+from tanklab.ua import new_client
 from tanklab.ua_security import ClientIdentity, ServerSecurity, secure_client
 from tanklab.users import Credentials
 
@@ -162,7 +163,7 @@ async def secure(
 ) -> Client:
     """A client of ``url`` set up (not connected) to connect as a test user or a tier:
     ``async with await secure(url, "operator") as client: ...``."""
-    client = Client(url, timeout=timeout_s)
+    client = new_client(url, timeout_s)
     await secure_client(client, identity(user, tier=tier))
     return client
 

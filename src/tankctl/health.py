@@ -28,10 +28,10 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn
 
-from asyncua import Client, ua
+from asyncua import ua
 
 from tanklab.home import SecurityHome, default_home
-from tanklab.ua import resolve
+from tanklab.ua import new_client, resolve
 from tanklab.ua_security import ClientIdentity, secure_client
 
 DEFAULT_PATHS = {
@@ -92,7 +92,7 @@ async def read_once(
     """
 
     async def exchange() -> Any:
-        client = Client(url, timeout=timeout_s)
+        client = new_client(url, timeout_s)
         await secure_client(client, identity)
         async with client:
             try:

@@ -98,7 +98,7 @@ from tanklab.tags import (
     supervisor_tags,
     tags_by_path,
 )
-from tanklab.ua import write_value
+from tanklab.ua import new_client, write_value
 from tanklab.ua_security import ClientIdentity, cli_identity, secure_client
 
 __all__ = [
@@ -449,7 +449,7 @@ class TierClient:
 
     async def connect(self) -> TierClient:
         """Connect and look the namespace index up (both within the timeout)."""
-        client = Client(self.url, timeout=self.timeout_s)
+        client = new_client(self.url, self.timeout_s)
         client.name = "tankctl"
         try:
             await asyncio.wait_for(secure_client(client, self.identity), self.timeout_s)

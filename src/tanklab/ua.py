@@ -527,6 +527,19 @@ ClientSetup = Callable[[Client], Awaitable[None]]
 SESSION_TIMEOUT_MS = 30_000
 """Session timeout a link asks for [ms]: a dead client's session is dropped within 30 s."""
 
+
+def new_client(url: str, timeout_s: float) -> Client:
+    """An asyncua client of ``url`` whose requests, and liveness probe, wait ``timeout_s``.
+
+    asyncua 2.1 probes the server every ``watchdog_intervall`` (1 s by default) and waits at
+    most that long for the answer; a probe that overruns marks the client disconnected for
+    good (no auto-reconnect). On a loaded two-core machine, or after the client's event loop
+    was busy for a second, a healthy server then looked dead (a CI run lost its test client so).
+    Here the probe runs every ``timeout_s`` and waits as long as any other request.
+    """
+    return Client(url, timeout=timeout_s, watchdog_intervall=timeout_s)
+
+
 BACKOFF_BASE_S = 0.2
 """Retry delay after a link's first failed connection attempt, before jitter [s]."""
 BACKOFF_FACTOR = 2.0
@@ -667,7 +680,7 @@ class Link:
             return True
         if self.clock.now() < self._next_attempt:
             return False
-        client = Client(self.url, timeout=self.timeout_s)
+        client = new_client(self.url, self.timeout_s)
         client.session_timeout = SESSION_TIMEOUT_MS
         try:
             await asyncio.wait_for(self.setup(client), self.timeout_s)

@@ -26,9 +26,13 @@ CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
 pytestmark = pytest.mark.process
 
 
-def tankctl(*args: str, base: int, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    """Run an operator command against the stack at ``base``."""
-    return subprocess.run(
+async def tankctl(
+    *args: str, base: int, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """Run an operator command against the stack at ``base``, in a thread: the test's event
+    loop (and the OPC UA clients it holds) keeps running while the command does."""
+    return await asyncio.to_thread(
+        subprocess.run,
         [sys.executable, "-m", "tankctl", *args, "--base-port", str(base)],
         capture_output=True,
         text=True,
@@ -62,11 +66,11 @@ async def test_cli_setpoint_leak_and_mode_through_the_lockstep_stack(lockstep_st
 
     await wait_until(lambda: near(0.4), 120, what="T1 filled to its 0.4 m setpoint")
     # A setpoint changed with the CLI is reached.
-    r = tankctl("setpoint", "LIC1", "0.45", base=base)
+    r = await tankctl("setpoint", "LIC1", "0.45", base=base)
     assert r.returncode == 0, r.stdout + r.stderr
     await wait_until(lambda: near(0.45), 120, what="T1 at the new 0.45 m setpoint")
     # A leak opened with the CLI is rejected by control: back within 1 cm of SP within 600 s.
-    r = tankctl("leak", "T1", "1.0", base=base)
+    r = await tankctl("leak", "T1", "1.0", base=base)
     assert r.returncode == 0, r.stdout + r.stderr
     t_leak = await model_time(plc)
 
@@ -76,18 +80,18 @@ async def test_cli_setpoint_leak_and_mode_through_the_lockstep_stack(lockstep_st
     await wait_until(dipped, 60, what="the leak to pull T1 down")
     await wait_until(lambda: near(0.45), 120, what="T1 back within 1 cm despite the leak")
     assert await model_time(plc) - t_leak < 600
-    assert tankctl("leak", "T1", "off", base=base).returncode == 0
+    assert (await tankctl("leak", "T1", "off", base=base)).returncode == 0
     # `tankctl mode mpc` puts the loops in REMOTE, and the MPC tracks a setpoint step.
-    r = tankctl("mode", "mpc", base=base)
+    r = await tankctl("mode", "mpc", base=base)
     assert r.returncode == 0, r.stdout + r.stderr
 
     async def remote() -> bool:
         return [await value(plc, f"PLC.LIC{j}.Mode") for j in (1, 2)] == [int(LoopMode.REMOTE)] * 2
 
     await wait_until(remote, 60, what="both loops in REMOTE")
-    assert tankctl("setpoint", "LIC1", "0.40", base=base).returncode == 0
+    assert (await tankctl("setpoint", "LIC1", "0.40", base=base)).returncode == 0
     await wait_until(lambda: near(0.40), 120, what="T1 tracks 0.40 m under the MPC")
-    status = tankctl("status", "--json", base=base)
+    status = await tankctl("status", "--json", base=base)
     assert status.returncode == 0 and "Traceback" not in status.stdout + status.stderr
 
 
@@ -106,15 +110,15 @@ async def test_first_run_provisions_a_secured_stack_and_the_tour_works(tmp_path:
         creds = home / "credentials"
         assert creds.stat().st_mode & 0o777 == 0o600
         assert "password=" not in "".join(up.lines)  # the password is never printed
-        r = tankctl("setpoint", "LIC1", "0.45", base=base, env=env)
+        r = await tankctl("setpoint", "LIC1", "0.45", base=base, env=env)
         assert r.returncode == 0 and r.stdout.startswith("PLC.LIC1.SP = 0.45 m (was 0.4 m)"), r.stderr
-        r = tankctl("leak", "T1", "0.3", base=base, env=env)
+        r = await tankctl("leak", "T1", "0.3", base=base, env=env)
         assert r.returncode == 0 and r.stdout.startswith("Plant.T1.Leak = 0.3 (was 0)"), r.stderr
-        r = tankctl("mode", "mpc", base=base, env=env)
+        r = await tankctl("mode", "mpc", base=base, env=env)
         assert r.returncode == 0 and r.stdout.startswith("Supervisor.Mode = MPC"), r.stderr
-        r = tankctl("setpoint", "LIC1", "0.7", base=base, env=env)
+        r = await tankctl("setpoint", "LIC1", "0.7", base=base, env=env)
         assert r.returncode == 1 and r.stderr.strip() == "tankctl: PLC.LIC1.SP = 0.7 refused: BadOutOfRange"
-        r = tankctl("gains", "LIC1", base=base, env=env)
+        r = await tankctl("gains", "LIC1", base=base, env=env)
         assert r.returncode == 0, r.stderr
     finally:
         assert await up.stop() == 0
@@ -202,7 +206,7 @@ async def test_supervisor_killed_plc_falls_back_and_holds_the_level(tmp_path: Pa
         async with await secure(urls[1]) as plc:
             await wait_until(lambda: _near(plc, "PLC.LIC1.PV", 0.4, 0.01), 120, what="T1 at 0.4 m")
             # Put the loops on supervisor gains, then kill the supervisor.
-            assert tankctl("mode", "adaptive-pid", base=base).returncode == 0
+            assert (await tankctl("mode", "adaptive-pid", base=base)).returncode == 0
 
             async def on_supervisor_gains() -> bool:
                 return await value(plc, "PLC.LIC1.GainSource") == int(GainSource.SUPERVISOR)
@@ -290,9 +294,9 @@ async def test_realtime_speed_20_smoke(tmp_path: Path) -> None:
             await wait_until(
                 lambda: _near(plc, "PLC.LIC1.PV", 0.4, 0.02), 90, what="T1 near 0.4 m at speed 20"
             )
-            assert tankctl("setpoint", "LIC1", "0.43", base=base).returncode == 0
+            assert (await tankctl("setpoint", "LIC1", "0.43", base=base)).returncode == 0
             await wait_until(lambda: _near(plc, "PLC.LIC1.PV", 0.43, 0.01), 90, what="T1 at 0.43 m")
-            assert tankctl("mode", "mpc", base=base).returncode == 0
+            assert (await tankctl("mode", "mpc", base=base)).returncode == 0
 
             async def remote() -> bool:
                 return await value(plc, "PLC.LIC1.Mode") == int(LoopMode.REMOTE)

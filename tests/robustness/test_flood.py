@@ -27,9 +27,9 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
-from asyncua import Client
 
 from helpers import ROOT, TEST_PASSWORDS, TierProcess, secure, session_home
+from tanklab.ua import new_client
 from tanklab.ua_security import ClientIdentity, secure_client
 from tanklab.users import Credentials
 
@@ -90,7 +90,7 @@ async def test_failed_logins_are_refused_while_the_plc_scans_on(plant_and_plc: t
     refused: list[bool] = []
 
     async def failed_login(k: int) -> None:
-        client = Client(plc_url, timeout=10)
+        client = new_client(plc_url, 10)
         await secure_client(
             client, ClientIdentity(home, "cli", Credentials(f"nobody{k}", "not-the-password"))
         )
