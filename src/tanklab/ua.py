@@ -529,15 +529,19 @@ SESSION_TIMEOUT_MS = 30_000
 
 
 def new_client(url: str, timeout_s: float) -> Client:
-    """An asyncua client of ``url`` whose requests, and liveness probe, wait ``timeout_s``.
+    """An asyncua client of ``url`` whose requests wait ``timeout_s`` and whose probe is patient.
 
     asyncua 2.1 probes the server every ``watchdog_intervall`` (1 s by default) and waits at
     most that long for the answer; a probe that overruns marks the client disconnected for
     good (no auto-reconnect). On a loaded two-core machine, or after the client's event loop
     was busy for a second, a healthy server then looked dead (a CI run lost its test client so).
-    Here the probe runs every ``timeout_s`` and waits as long as any other request.
+    Here the probe runs every half session timeout and waits as long (asyncua caps its wait at
+    half the session timeout): a server that stops answering is still found before its session
+    would expire, and a slow answer is not a lost link. Tier links find a lost peer sooner by
+    their own requests (each waits ``timeout_s``).
     """
-    return Client(url, timeout=timeout_s, watchdog_intervall=timeout_s)
+    half_session_s = max(timeout_s, SESSION_TIMEOUT_MS / 1000.0 / 2.0)
+    return Client(url, timeout=timeout_s, watchdog_intervall=half_session_s)
 
 
 BACKOFF_BASE_S = 0.2
