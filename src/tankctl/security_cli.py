@@ -188,7 +188,10 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
 
 def _files(pki: Pki) -> list[str]:
     """One line per file a client must trust or use: what, format, path, what to do with it."""
-    rows = [(f.what, f.format, str(f.path), f.use) for f in client_files(pki)]
+    rows = [
+        (f.what, f.format, str(f.path), f.use if f.path.exists() else "MISSING (tankctl pki init)")
+        for f in client_files(pki)
+    ]
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     return ["  ".join([*(r[i].ljust(widths[i]) for i in range(3)), r[3]]) for r in rows]
 
@@ -210,7 +213,7 @@ def pki_show(
     _upgraded(pki)
     rows = _guard(lambda: describe(pki))
     if as_json:
-        files = [f.as_dict() for f in client_files(pki)]
+        files = [{**f.as_dict(), "exists": f.path.exists()} for f in client_files(pki)]
         typer.echo(json.dumps({"client_files": files, "certificates": rows}, indent=2))
         return
     typer.echo("For a client of these servers (see docs/security.md, 'Third-party clients'):")

@@ -128,6 +128,7 @@ def test_pki_show_json_and_table(pki_home: Path) -> None:
     assert files[("CA revocation list", "DER")] == str(pki.crl_file)
     assert files[("client certificates", "directory")] == str(pki.trusted_dir)
     assert str(pki.ca_key) not in ran.stdout
+    assert all(f["exists"] for f in shown["client_files"])
     table = run("pki", "show", "--home", str(pki_home))
     assert table.code == 0
     lines = table.stdout.splitlines()
@@ -143,6 +144,18 @@ def test_pki_show_json_and_table(pki_home: Path) -> None:
     assert lines[9] == ""
     assert lines[10].split()[:2] == ["KIND", "NAME"]
     assert own["plc"]["sha1"] in table.stdout
+    assert "MISSING" not in table.stdout
+
+
+def test_pki_show_marks_a_missing_client_file(tmp_path: Path) -> None:
+    pki = SecurityHome(tmp_path).pki
+    pki.trusted_dir.mkdir(parents=True)  # a PKI directory without its files
+    ran = run("pki", "show", "--home", str(tmp_path))
+    assert ran.code == 0, ran.stderr
+    ca_line = ran.stdout.splitlines()[1]
+    assert str(pki.ca_cert) in ca_line and ca_line.endswith("MISSING (tankctl pki init)")
+    trusted_line = ran.stdout.splitlines()[8]
+    assert str(pki.trusted_dir) in trusted_line and "tankctl pki trust" in trusted_line
 
 
 def test_pki_commands_upgrade_an_old_home_and_say_so(pki_home: Path) -> None:
