@@ -69,7 +69,7 @@ async def _tankctl(home: Path, *args: str, stdin: str | None = None) -> str:
         cwd=ROOT,
     )
     try:
-        out, err = await asyncio.wait_for(proc.communicate(stdin.encode() if stdin else None), 60)
+        out, err = await asyncio.wait_for(proc.communicate(stdin.encode() if stdin else None), 120)
     finally:
         if proc.returncode is None:
             proc.kill()
@@ -94,7 +94,7 @@ async def _node_read(url: str, pki_dir: Path, path: str) -> dict[str, Any]:
         env=dict(os.environ, TANKLAB_PASSWORD=PASSWORD),
     )
     try:
-        out, err = await asyncio.wait_for(proc.communicate(), 60)
+        out, err = await asyncio.wait_for(proc.communicate(), 120)
     finally:
         if proc.returncode is None:
             proc.kill()
@@ -133,7 +133,7 @@ async def plant_url(home: SecurityHome):
         )
     )
     try:
-        await wait_until(ready.is_set, 20, what="plant server ready")
+        await wait_until(ready.is_set, 60, what="plant server ready")
         yield f"opc.tcp://127.0.0.1:{port}/tanklab/plant"
     finally:
         stop.set()
@@ -176,7 +176,7 @@ async def test_node_opcua_connects_the_readme_way_and_not_without_the_ca_or_crl(
     # writes a value node-opcua must then read.
     said = await _tankctl(home.root, "pki", "trust", str(client_cert))
     assert said.startswith(f"trusted {client_cert} as {trusted_dir}/")
-    client = Client(plant_url, timeout=4.0)
+    client = Client(plant_url, timeout=10.0)
     await secure_client(client, ClientIdentity(home, "cli", Credentials(USER, PASSWORD)))
     async with client:
         node = (await resolve(client, ["Plant.V13.Opening"]))["Plant.V13.Opening"]
