@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 CONFIG ?= configs/three_tank_energies_sim.yaml
 PYTEST_ARGS ?=
 
-.PHONY: venv tools run test lint typecheck unit bench docs clean
+.PHONY: venv tools node-tools run test lint typecheck unit bench docs clean
 
 venv: $(STAMP)
 
@@ -39,6 +39,22 @@ tools:
 	else \
 	  echo "make tools: docker-compose is missing and cannot be installed (needs root and apt-get);" \
 	       "tests/test_docker.py will skip its 'docker-compose config' check"; \
+	fi
+	@$(MAKE) --no-print-directory node-tools
+
+# tests/integration/test_node_opcua.py runs node-opcua, pinned by tests/node/package-lock.json:
+# `npm ci` there when node_modules is missing or older than package.json / package-lock.json.
+# Without node the test skips; with node but without node_modules it fails, naming this target.
+NODE_DIR   := tests/node
+NODE_STAMP := $(NODE_DIR)/node_modules/.package-lock.json
+
+node-tools:
+	@if ! command -v npm >/dev/null 2>&1; then \
+	  echo "make tools: npm is missing: tests/integration/test_node_opcua.py needs node and npm"; \
+	elif [ ! -f $(NODE_STAMP) ] || [ $(NODE_DIR)/package-lock.json -nt $(NODE_STAMP) ] \
+	     || [ $(NODE_DIR)/package.json -nt $(NODE_STAMP) ]; then \
+	  echo "make tools: npm ci in $(NODE_DIR) (node-opcua for tests/integration/test_node_opcua.py)"; \
+	  cd $(NODE_DIR) && npm ci --no-audit --no-fund --loglevel=error; \
 	fi
 
 test: tools lint typecheck

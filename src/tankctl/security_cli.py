@@ -5,7 +5,7 @@
     tankctl pki init [--home DIR] [--host HOST ...] [--days N] [--force]
     tankctl pki trust FILE [--home DIR]          add an external certificate (DER or PEM)
     tankctl pki revoke FILE [--home DIR]         put a CA-issued certificate on the CRL
-    tankctl pki show [--home DIR] [--json]
+    tankctl pki show [--home DIR] [--json]      what a client must trust and use; the certificates
     tankctl user add NAME --role ROLE [--home DIR] [--password-stdin] [--replace]
     tankctl user list [--home DIR]
     tankctl user remove NAME [--home DIR]
@@ -14,6 +14,10 @@
 ``~/.config/tanklab``. ``user add`` reads the password from stdin (``--password-stdin``, one
 line), else from ``TANKLAB_NEW_PASSWORD``, else prompts twice without echo; no command prints a
 password or key material.
+
+Every ``pki`` command first upgrades a PKI made before decision 0022 (the CA's private key
+renamed from ``ca/ca.pem`` to ``ca/ca-key.pem``, PEM copies of the CA certificate and CRL) and
+says so on stderr, one line per change.
 
 Exit codes: 0 done; 2 a bad argument, an invalid or unsafe file, a refused operation; every
 failure is one line ``tankctl: ...`` on stderr.
@@ -32,7 +36,18 @@ import typer
 from tankctl.usage import OneLineUsage
 from tanklab.errors import TanklabError
 from tanklab.home import SecurityHome, default_home
-from tanklab.pki import DEFAULT_DAYS, DEFAULT_HOSTS, IDENTITIES, Pki, describe, init_pki, revoke, trust
+from tanklab.pki import (
+    DEFAULT_DAYS,
+    DEFAULT_HOSTS,
+    IDENTITIES,
+    Pki,
+    client_files,
+    describe,
+    init_pki,
+    migrate,
+    revoke,
+    trust,
+)
 from tanklab.users import LOGIN_ROLES, UsersFile
 
 __all__ = ["ENV_NEW_PASSWORD", "pki_app", "register", "user_app"]
@@ -84,6 +99,14 @@ def _writable_home(home: Path | None) -> SecurityHome:
     return sec
 
 
+def _upgraded(pki: Pki) -> Pki:
+    """``pki`` after :func:`tanklab.pki.migrate`, each change told on stderr (one line each)."""
+    if pki.root.is_dir():
+        for change in _guard(lambda: migrate(pki)):
+            typer.echo(f"tankctl: PKI upgraded (decision 0022): {change}", err=True)
+    return pki
+
+
 def _stdin_is_terminal() -> bool:
     return typer.get_text_stream("stdin").isatty()
 
@@ -108,15 +131,17 @@ def pki_init(
     """Create the CA and the plant, plc, supervisor and cli certificates (kept if present)."""
     if days <= 0:
         _fail(f"pki init: --days must be a positive number of days, got {days}")
-    pki = _writable_home(home).pki
+    pki = _upgraded(_writable_home(home).pki)
     if pki.exists() and not force:
         typer.echo(f"PKI at {pki.root}: kept (complete; --force replaces it)")
         return
     hosts = tuple(host) if host else DEFAULT_HOSTS
     _guard(lambda: init_pki(pki.root, hosts=hosts, days=days, force=force))
-    typer.echo(f"PKI at {pki.root}: CA {pki.ca_cert}")
+    typer.echo(f"PKI at {pki.root}: CA certificate {pki.ca_cert} and {pki.ca_cert_pem.name}")
+    typer.echo(f"CA private key {pki.ca_key} (0600; never hand it out)")
     typer.echo(f"certificates in {pki.own_dir} for {', '.join(IDENTITIES)} (hosts {', '.join(hosts)})")
     typer.echo(f"private keys in {pki.private_dir} (0600); trusted: {pki.trusted_dir}; CRL: {pki.crl_file}")
+    typer.echo("what a client must trust: tankctl pki show")
 
 
 @pki_app.command("trust", cls=OneLineUsage)
@@ -125,7 +150,7 @@ def pki_trust(
     home: HomeOpt = None,
 ) -> None:
     """Trust an external certificate (or CA): peers presenting it, or chaining to it, are accepted."""
-    pki = _writable_home(home).pki
+    pki = _upgraded(_writable_home(home).pki)
     stored = _guard(lambda: trust(pki, file))
     row = _guard(lambda: next(r for r in describe(pki) if r["path"] == str(stored)))
     typer.echo(f"trusted {file} as {stored} (SHA-1 {row['sha1']}, {row['subject']})")
@@ -137,7 +162,7 @@ def pki_revoke(
     home: HomeOpt = None,
 ) -> None:
     """Put a CA-issued certificate on the CA's revocation list."""
-    pki = _home(home).pki
+    pki = _upgraded(_home(home).pki)
     _guard(lambda: revoke(pki, file))
     typer.echo(f"revoked {file}: CRL {pki.crl_file} (servers reload it on restart)")
 
@@ -161,21 +186,40 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
     return ["  ".join(c[i].ljust(widths[i]) for i in range(len(head))).rstrip() for c in [head, *cells]]
 
 
+def _files(pki: Pki) -> list[str]:
+    """One line per file a client must trust or use: what, format, path, what to do with it."""
+    rows = [
+        (f.what, f.format, str(f.path), f.use if f.path.exists() else "MISSING (tankctl pki init)")
+        for f in client_files(pki)
+    ]
+    widths = [max(len(r[i]) for r in rows) for i in range(3)]
+    return ["  ".join([*(r[i].ljust(widths[i]) for i in range(3)), r[3]]) for r in rows]
+
+
 @pki_app.command("show", cls=OneLineUsage)
 def pki_show(
     home: HomeOpt = None,
     as_json: Annotated[
-        bool, typer.Option("--json", help="Print a JSON list, one object per certificate.")
+        bool,
+        typer.Option(
+            "--json", help='Print {"client_files": [...], "certificates": [...]} (one object per file).'
+        ),
     ] = False,
 ) -> None:
-    """List own and trusted certificates: URI, expiry, SHA-1 thumbprint, revoked."""
+    """What a client must trust and use (one line per file), then every own and trusted certificate."""
     pki: Pki = _home(home).pki
     if not pki.root.is_dir():
         _fail(f"{pki.root}: no PKI (run `tankctl pki init`)")
+    _upgraded(pki)
     rows = _guard(lambda: describe(pki))
     if as_json:
-        typer.echo(json.dumps(rows, indent=2))
+        files = [{**f.as_dict(), "exists": f.path.exists()} for f in client_files(pki)]
+        typer.echo(json.dumps({"client_files": files, "certificates": rows}, indent=2))
         return
+    typer.echo("For a client of these servers (see docs/security.md, 'Third-party clients'):")
+    for line in _files(pki):
+        typer.echo(line)
+    typer.echo("")
     for line in _table(rows):
         typer.echo(line)
 

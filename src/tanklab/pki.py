@@ -2,13 +2,24 @@
 
 Layout under ``root`` (directories 0700, private keys 0600 unencrypted PKCS#8 PEM, certs DER)::
 
-    ca/ca.der              the tanklab CA: self-signed, BasicConstraints cA=true (critical),
-    ca/ca.pem              KeyUsage keyCertSign + cRLSign; its private key
+    ca/ca.der              the tanklab CA's certificate: self-signed, BasicConstraints cA=true
+    ca/ca-cert.pem         (critical), KeyUsage keyCertSign + cRLSign; the same in PEM
+    ca/ca-key.pem          the CA's private key (0600): never handed out
     own/{name}.der         application certificates, one per IDENTITY (plant, plc, supervisor,
     private/{name}.pem     cli) plus any issued later; their private keys
     trusted/               what a peer must chain to: the CA's copy (tanklab-ca.der) and external
                            certificates added by :func:`trust` (``{CN}_{sha1}.der``)
-    crl/ca.crl.der         the CA's revocation list, signed by the CA
+    crl/ca.crl.der         the CA's revocation list, signed by the CA; the same in PEM
+    crl/ca.crl.pem
+
+What a third-party client must trust is the CA certificate and its CRL (:func:`client_files`
+lists them for ``tankctl pki show``): node-opcua, for one, refuses a server certificate whose
+issuer or CRL it does not hold (BadCertificateChainIncomplete, BadCertificateRevocationUnknown).
+
+Homes made before decision 0022 kept the CA's private key as ``ca/ca.pem``, a name a user
+takes for "the CA certificate in PEM". :func:`migrate` renames it to ``ca/ca-key.pem`` (still
+0600) and writes the missing PEM copies; every function here that opens the CA runs it first
+and logs what it changed, so an old home is upgraded on first use.
 
 These are the locations asyncua's ``TrustStore([trusted], [crl])`` reads: a peer is trusted
 when its certificate chains to a certificate in ``trusted/`` (cryptography's client verifier)
@@ -28,6 +39,7 @@ logs or prints key material.
 from __future__ import annotations
 
 import ipaddress
+import logging
 import os
 import re
 from collections.abc import Sequence
@@ -51,10 +63,14 @@ __all__ = [
     "DEFAULT_HOSTS",
     "IDENTITIES",
     "KEY_BITS",
+    "SERVER_IDENTITIES",
+    "ClientFile",
     "Pki",
+    "client_files",
     "describe",
     "init_pki",
     "issue",
+    "migrate",
     "read_certificate",
     "revoke",
     "self_signed",
@@ -64,6 +80,11 @@ __all__ = [
 
 IDENTITIES = ("plant", "plc", "supervisor", "cli")
 """The application identities :func:`init_pki` issues a certificate for (keys of APPLICATION_URIS)."""
+
+SERVER_IDENTITIES = ("plant", "plc", "supervisor")
+"""The identities that serve OPC UA (the certificates a third-party client is presented)."""
+
+_log = logging.getLogger(__name__)
 
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
 """Hosts written into every certificate's SubjectAltName (DNSName, or IPAddress when it parses)."""
@@ -82,6 +103,9 @@ CLOCK_SKEW = timedelta(minutes=5)
 
 CA_TRUST_NAME = "tanklab-ca.der"
 """File name of the CA's copy in ``trusted/``."""
+
+LEGACY_CA_KEY_NAME = "ca.pem"
+"""Where homes made before decision 0022 kept the CA's private key (``ca/``); :func:`migrate`."""
 
 _ORGANIZATION = "tanklab"
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
@@ -105,7 +129,7 @@ class Pki:
         return cls(
             root=root,
             ca_cert=root / "ca" / "ca.der",
-            ca_key=root / "ca" / "ca.pem",
+            ca_key=root / "ca" / "ca-key.pem",
             trusted_dir=root / "trusted",
             crl_dir=root / "crl",
         )
@@ -121,9 +145,24 @@ class Pki:
         return self.root / "private"
 
     @property
+    def ca_cert_pem(self) -> Path:
+        """The CA certificate in PEM (``ca/ca-cert.pem``), for clients that take PEM."""
+        return self.ca_cert.parent / "ca-cert.pem"
+
+    @property
+    def legacy_ca_key(self) -> Path:
+        """``ca/ca.pem``: the CA's private key in homes made before decision 0022."""
+        return self.ca_cert.parent / LEGACY_CA_KEY_NAME
+
+    @property
     def crl_file(self) -> Path:
         """The CA's revocation list (DER)."""
         return self.crl_dir / "ca.crl.der"
+
+    @property
+    def crl_pem(self) -> Path:
+        """The CA's revocation list in PEM (``crl/ca.crl.pem``; asyncua's TrustStore reads both)."""
+        return self.crl_dir / "ca.crl.pem"
 
     def cert_path(self, name: str) -> Path:
         """Application certificate of ``name``: ``root/own/{name}.der``."""
@@ -307,6 +346,7 @@ def read_certificate(file: Path) -> x509.Certificate:
 
 
 def _read_ca(pki: Pki) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
+    _migrate_logged(pki)
     if not (pki.ca_cert.is_file() and pki.ca_key.is_file()):
         raise SecurityError(f"{pki.root}: no tanklab CA (run `tankctl pki init`)")
     cert = read_certificate(pki.ca_cert)
@@ -423,6 +463,7 @@ def _write_crl(
         builder = builder.add_revoked_certificate(entry)
     crl = builder.sign(key, hashes.SHA256())
     _write(pki.crl_file, crl.public_bytes(serialization.Encoding.DER), 0o644)
+    _write(pki.crl_pem, crl.public_bytes(serialization.Encoding.PEM), 0o644)
 
 
 def init_pki(
@@ -451,6 +492,7 @@ def init_pki(
         Replace an existing CA and all its certificates.
     """
     pki = Pki.at(root)
+    _migrate_logged(pki)
     if pki.exists() and not force:
         return pki
     _general_names("urn:check", hosts)  # reject a bad host before anything is written
@@ -463,6 +505,7 @@ def init_pki(
         ca = _make_ca(now, days)
         _write_key(pki.ca_key, ca[1])
         _write_cert(pki.ca_cert, ca[0])
+        _write(pki.ca_cert_pem, ca[0].public_bytes(serialization.Encoding.PEM), 0o644)
     else:
         ca = _read_ca(pki)
     start, end = _validity(now, days, None, None)
@@ -597,3 +640,122 @@ def describe(pki: Pki) -> list[dict[str, Any]]:
         files = sorted(p for p in pki.trusted_dir.iterdir() if p.suffix.lower() in (".der", ".pem"))
         rows += [_describe_one(p, "trusted", revoked) for p in files]
     return rows
+
+
+# --------------------------------------------------------------------------------------------
+# Upgrading homes made before decision 0022; what a third-party client needs
+# --------------------------------------------------------------------------------------------
+
+
+def _is_private_key_pem(path: Path) -> bool:
+    try:
+        return b"PRIVATE KEY-----" in path.read_bytes()
+    except OSError:
+        return False
+
+
+def migrate(pki: Pki) -> list[str]:
+    """Bring a PKI made before decision 0022 to the current layout; returns what it changed.
+
+    - ``ca/ca.pem`` holding a private key (the old name of the CA's key) is renamed to
+      ``ca/ca-key.pem`` and kept 0600. When both exist with the same bytes the old name is
+      removed; with different bytes nothing is touched and a :class:`SecurityError` names both
+      (which key signed ``ca/ca.der`` is for a person to decide, not a guess).
+    - The PEM copies of the CA certificate and of the CRL are written when their DER files
+      exist and they do not.
+
+    Idempotent: a current PKI, or a directory with no PKI, returns ``[]`` and writes nothing.
+    A ``ca/ca.pem`` that is not a private key is left alone. Safe against a second process
+    migrating at the same time (the rename is atomic; losing the race is not an error).
+    """
+    changes: list[str] = []
+    old, new = pki.legacy_ca_key, pki.ca_key
+    if old.is_file() and _is_private_key_pem(old):
+        if new.is_file():
+            if old.read_bytes() != new.read_bytes():
+                raise SecurityError(
+                    f"{old}: an old-layout CA private key next to a different {new.name}: "
+                    f"keep the key of {pki.ca_cert.name} as {new.name} and remove the other"
+                )
+            old.unlink(missing_ok=True)
+            changes.append(f"{old}: removed (a second copy of the CA private key {new})")
+        else:
+            try:
+                os.replace(old, new)
+            except FileNotFoundError:  # another process renamed it first
+                pass
+            else:
+                changes.append(f"{old}: the CA private key, renamed to {new} (0600)")
+        if new.is_file():
+            os.chmod(new, 0o600)
+    if pki.ca_cert.is_file() and not pki.ca_cert_pem.is_file():
+        cert = read_certificate(pki.ca_cert)
+        _write(pki.ca_cert_pem, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+        changes.append(f"{pki.ca_cert_pem}: wrote the CA certificate in PEM")
+    if pki.crl_file.is_file() and not pki.crl_pem.is_file():
+        try:
+            crl = x509.load_der_x509_crl(pki.crl_file.read_bytes())
+        except (OSError, ValueError):
+            raise SecurityError(f"{pki.crl_file}: not a readable DER CRL") from None
+        _write(pki.crl_pem, crl.public_bytes(serialization.Encoding.PEM), 0o644)
+        changes.append(f"{pki.crl_pem}: wrote the CA's revocation list in PEM")
+    return changes
+
+
+def _migrate_logged(pki: Pki) -> None:
+    """:func:`migrate`, each change logged as a warning (an upgrade the owner should know of)."""
+    for change in migrate(pki):
+        _log.warning("PKI upgraded (decision 0022): %s", change)
+
+
+@dataclass(frozen=True)
+class ClientFile:
+    """One file a third-party OPC UA client must be given, or one place it must use.
+
+    ``what`` is the role in words, ``format`` "DER", "PEM" or "directory", ``path`` where it is,
+    ``use`` what the client (or its user) does with it.
+    """
+
+    what: str
+    format: str
+    path: Path
+    use: str
+
+    def as_dict(self) -> dict[str, str]:
+        """JSON-ready: the four fields, the path as a string."""
+        return {"what": self.what, "format": self.format, "path": str(self.path), "use": self.use}
+
+
+def client_files(pki: Pki) -> list[ClientFile]:
+    """What a client of the tanklab servers must trust and use, in the order of ``pki show``.
+
+    The CA certificate and its CRL (both in DER and PEM) go into the client's trust list: every
+    server certificate chains to the CA, and clients such as node-opcua and UaExpert refuse a
+    CA-issued certificate whose issuer's CRL they lack. The server certificates are listed for
+    clients that pin a server certificate instead. The client's own certificate goes into the
+    site's ``trusted/`` through ``tankctl pki trust``. Nothing here reads or writes a file.
+    """
+    files = [
+        ClientFile("CA certificate", "DER", pki.ca_cert, "client trusts it (its trusted certificates)"),
+        ClientFile("CA certificate", "PEM", pki.ca_cert_pem, "client trusts it (its trusted certificates)"),
+        ClientFile("CA revocation list", "DER", pki.crl_file, "client trusts it (its trusted CRLs)"),
+        ClientFile("CA revocation list", "PEM", pki.crl_pem, "client trusts it (its trusted CRLs)"),
+    ]
+    files += [
+        ClientFile(
+            f"{name} server certificate",
+            "DER",
+            pki.cert_path(name),
+            "issued by the CA; trust it directly only if the client cannot trust the CA",
+        )
+        for name in SERVER_IDENTITIES
+    ]
+    files.append(
+        ClientFile(
+            "client certificates",
+            "directory",
+            pki.trusted_dir,
+            "the client's own certificate goes here: tankctl pki trust CLIENT_CERT",
+        )
+    )
+    return files

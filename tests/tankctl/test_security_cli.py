@@ -116,15 +116,69 @@ def test_pki_init_bad_arguments(tmp_path: Path) -> None:
 def test_pki_show_json_and_table(pki_home: Path) -> None:
     ran = run("pki", "show", "--home", str(pki_home), "--json")
     assert ran.code == 0, ran.stderr
-    rows = json.loads(ran.stdout)
+    shown = json.loads(ran.stdout)
+    rows = shown["certificates"]
     own = {r["name"]: r for r in rows if r["kind"] == "own"}
     assert set(IDENTITIES) <= set(own)
     assert own["supervisor"]["uri"] == "urn:tanklab:supervisor"
     assert any(r["kind"] == "trusted" and r["name"] == "tanklab-ca" for r in rows)
+    pki = SecurityHome(pki_home).pki
+    files = {(f["what"], f["format"]): f["path"] for f in shown["client_files"]}
+    assert files[("CA certificate", "PEM")] == str(pki.ca_cert_pem)
+    assert files[("CA revocation list", "DER")] == str(pki.crl_file)
+    assert files[("client certificates", "directory")] == str(pki.trusted_dir)
+    assert str(pki.ca_key) not in ran.stdout
+    assert all(f["exists"] for f in shown["client_files"])
     table = run("pki", "show", "--home", str(pki_home))
     assert table.code == 0
-    assert table.stdout.splitlines()[0].split()[:2] == ["KIND", "NAME"]
+    lines = table.stdout.splitlines()
+    # One line per client file (CA cert DER + PEM, CRL DER + PEM, 3 server certs, trusted/),
+    # a blank line, then the certificate table.
+    assert lines[0].startswith("For a client of these servers")
+    assert [ln.split()[-1] for ln in lines[1:3]] == ["certificates)"] * 2
+    assert [str(pki.ca_cert) in lines[1], str(pki.ca_cert_pem) in lines[2]] == [True, True]
+    assert str(pki.crl_file) in lines[3] and str(pki.crl_pem) in lines[4]
+    servers = zip(("plant", "plc", "supervisor"), lines[5:8], strict=True)
+    assert [str(pki.cert_path(n)) in ln for n, ln in servers] == [True] * 3
+    assert str(pki.trusted_dir) in lines[8] and "tankctl pki trust" in lines[8]
+    assert lines[9] == ""
+    assert lines[10].split()[:2] == ["KIND", "NAME"]
     assert own["plc"]["sha1"] in table.stdout
+    assert "MISSING" not in table.stdout
+
+
+def test_pki_show_marks_a_missing_client_file(tmp_path: Path) -> None:
+    pki = SecurityHome(tmp_path).pki
+    pki.trusted_dir.mkdir(parents=True)  # a PKI directory without its files
+    ran = run("pki", "show", "--home", str(tmp_path))
+    assert ran.code == 0, ran.stderr
+    ca_line = ran.stdout.splitlines()[1]
+    assert str(pki.ca_cert) in ca_line and ca_line.endswith("MISSING (tankctl pki init)")
+    trusted_line = ran.stdout.splitlines()[8]
+    assert str(pki.trusted_dir) in trusted_line and "tankctl pki trust" in trusted_line
+
+
+def test_pki_commands_upgrade_an_old_home_and_say_so(pki_home: Path) -> None:
+    pki = SecurityHome(pki_home).pki
+    key = pki.ca_key.read_bytes()
+    pki.ca_key.rename(pki.legacy_ca_key)  # the layout before decision 0022
+    pki.ca_cert_pem.unlink()
+    ran = run("pki", "show", "--home", str(pki_home))
+    assert ran.code == 0, ran.stderr
+    assert ran.stderr.splitlines() == [
+        f"tankctl: PKI upgraded (decision 0022): {pki.legacy_ca_key}: the CA private key, "
+        f"renamed to {pki.ca_key} (0600)",
+        f"tankctl: PKI upgraded (decision 0022): {pki.ca_cert_pem}: wrote the CA certificate in PEM",
+    ]
+    assert pki.ca_key.read_bytes() == key and stat.S_IMODE(pki.ca_key.stat().st_mode) == 0o600
+    assert run("pki", "show", "--home", str(pki_home)).stderr == ""  # once
+    # pki init on an old home upgrades it and keeps the CA (peers keep trusting it).
+    pki.ca_key.rename(pki.legacy_ca_key)
+    ca = pki.ca_cert.read_bytes()
+    init = run("pki", "init", "--home", str(pki_home))
+    assert init.code == 0, init.stderr
+    assert "renamed to" in init.stderr and "kept" in init.stdout
+    assert pki.ca_key.is_file() and not pki.legacy_ca_key.exists() and pki.ca_cert.read_bytes() == ca
 
 
 def test_pki_show_without_pki(tmp_path: Path) -> None:
@@ -155,7 +209,7 @@ def test_pki_revoke(pki_home: Path, tmp_path: Path) -> None:
     pki = SecurityHome(pki_home).pki
     ran = run("pki", "revoke", str(pki.cert_path("cli")), "--home", str(pki_home))
     assert ran.code == 0, ran.stderr
-    rows = json.loads(run("pki", "show", "--home", str(pki_home), "--json").stdout)
+    rows = json.loads(run("pki", "show", "--home", str(pki_home), "--json").stdout)["certificates"]
     revoked = {r["name"] for r in rows if r["revoked"]}
     assert revoked == {"cli"}
     foreign, _ = self_signed(tmp_path, "foreign", "urn:example:foreign")

@@ -24,12 +24,16 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from tanklab.errors import SecurityError
+from tanklab.home import SecurityHome, provision
 from tanklab.pki import (
     IDENTITIES,
+    SERVER_IDENTITIES,
     Pki,
+    client_files,
     describe,
     init_pki,
     issue,
+    migrate,
     read_certificate,
     revoke,
     self_signed,
@@ -97,7 +101,9 @@ def files_of(root: Path) -> dict[str, bytes]:
 def test_layout_paths(tmp_path: Path) -> None:
     pki = Pki.at(tmp_path)
     assert pki.ca_cert == tmp_path / "ca" / "ca.der"
-    assert pki.ca_key == tmp_path / "ca" / "ca.pem"
+    assert pki.ca_key == tmp_path / "ca" / "ca-key.pem"
+    assert pki.ca_cert_pem == tmp_path / "ca" / "ca-cert.pem"
+    assert pki.crl_pem == tmp_path / "crl" / "ca.crl.pem"
     assert pki.trusted_dir == tmp_path / "trusted"
     assert pki.crl_dir == tmp_path / "crl"
     assert pki.cert_path("plc") == tmp_path / "own" / "plc.der"
@@ -344,3 +350,128 @@ def test_describe(world: World) -> None:
     trusted_uris = {r["uri"] for (kind, _), r in rows.items() if kind == "trusted"}
     assert trusted_uris == {None, "urn:example:uaexpert"}
     assert {name for kind, name in rows if kind == "own"} >= set(IDENTITIES)
+
+
+# --------------------------------------------------------------------------------------------
+# PEM copies, the client's files, homes made before decision 0022
+# --------------------------------------------------------------------------------------------
+
+
+def test_pem_copies_are_the_der_files(world: World) -> None:
+    pki = world.pki
+    assert read_certificate(pki.ca_cert_pem) == read_certificate(pki.ca_cert)
+    assert pki.ca_cert_pem.read_bytes().startswith(b"-----BEGIN CERTIFICATE-----")
+    assert mode(pki.ca_cert_pem) == 0o644
+    # The CRL's PEM copy follows every re-signing (the world revoked ``victim``).
+    pem = x509.load_pem_x509_crl(pki.crl_pem.read_bytes())
+    assert pem.public_bytes(serialization.Encoding.DER) == pki.crl_file.read_bytes()
+    assert read_certificate(world.victim).serial_number in {e.serial_number for e in pem}
+
+
+def test_client_files_name_what_a_client_trusts_and_they_exist(world: World) -> None:
+    files = client_files(world.pki)
+    pki = world.pki
+    assert [(f.what, f.format, f.path) for f in files[:4]] == [
+        ("CA certificate", "DER", pki.ca_cert),
+        ("CA certificate", "PEM", pki.ca_cert_pem),
+        ("CA revocation list", "DER", pki.crl_file),
+        ("CA revocation list", "PEM", pki.crl_pem),
+    ]
+    assert [f.path for f in files[4:-1]] == [pki.cert_path(n) for n in SERVER_IDENTITIES]
+    assert (files[-1].format, files[-1].path) == ("directory", pki.trusted_dir)
+    assert "tankctl pki trust" in files[-1].use
+    assert all(f.path.exists() for f in files)
+    assert pki.ca_key not in {f.path for f in files}  # the key is never among a client's files
+    assert files[0].as_dict() == {
+        "what": "CA certificate",
+        "format": "DER",
+        "path": str(pki.ca_cert),
+        "use": files[0].use,
+    }
+
+
+def _old_layout(root: Path) -> tuple[Pki, bytes]:
+    """A PKI as ``tankctl pki init`` made it before decision 0022; returns it and its CA key."""
+    return _old_layout_of(init_pki(root))
+
+
+def _old_layout_of(pki: Pki) -> tuple[Pki, bytes]:
+    """``pki`` turned back into the layout before decision 0022; returns it and its CA key."""
+    key = pki.ca_key.read_bytes()
+    pki.ca_key.rename(pki.legacy_ca_key)
+    pki.ca_cert_pem.unlink()
+    pki.crl_pem.unlink()
+    return pki, key
+
+
+def test_an_old_home_is_upgraded_on_first_use_and_logged(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    pki, key = _old_layout(tmp_path / "pki")
+    ca = pki.ca_cert.read_bytes()
+    assert not pki.exists()  # so that provision / up run init_pki, which upgrades it
+    with caplog.at_level("WARNING", logger="tanklab.pki"):
+        init_pki(pki.root)
+    assert pki.exists()
+    assert not pki.legacy_ca_key.exists()
+    assert pki.ca_key.read_bytes() == key and mode(pki.ca_key) == 0o600
+    assert pki.ca_cert.read_bytes() == ca  # the same CA: peers keep trusting it
+    assert read_certificate(pki.ca_cert_pem) == read_certificate(pki.ca_cert)
+    assert (
+        x509.load_pem_x509_crl(pki.crl_pem.read_bytes()).public_bytes(serialization.Encoding.DER)
+        == pki.crl_file.read_bytes()
+    )
+    logged = [r.getMessage() for r in caplog.records if r.name == "tanklab.pki"]
+    assert logged == [
+        f"PKI upgraded (decision 0022): {pki.legacy_ca_key}: the CA private key, "
+        f"renamed to {pki.ca_key} (0600)",
+        f"PKI upgraded (decision 0022): {pki.ca_cert_pem}: wrote the CA certificate in PEM",
+        f"PKI upgraded (decision 0022): {pki.crl_pem}: wrote the CA's revocation list in PEM",
+    ]
+    assert migrate(pki) == []  # idempotent
+
+
+def test_issue_and_revoke_upgrade_an_old_home_too(tmp_path: Path) -> None:
+    pki, key = _old_layout(tmp_path / "pki")
+    cert, _ = issue(pki, "hmi", "urn:example:hmi")
+    assert pki.ca_key.read_bytes() == key and not pki.legacy_ca_key.exists()
+    read_certificate(cert).verify_directly_issued_by(read_certificate(pki.ca_cert))
+    revoke(pki, cert)
+    assert read_certificate(cert).serial_number in {
+        e.serial_number for e in x509.load_pem_x509_crl(pki.crl_pem.read_bytes())
+    }
+
+
+def test_migrate_leaves_a_non_key_alone_and_refuses_two_different_keys(tmp_path: Path) -> None:
+    pki = init_pki(tmp_path / "pki")
+    assert migrate(pki) == []
+    # A user who put the CA certificate at ca/ca.pem (what the old name suggested) keeps it.
+    pki.legacy_ca_key.write_bytes(pki.ca_cert_pem.read_bytes())
+    assert migrate(pki) == [] and pki.legacy_ca_key.is_file()
+    # A second copy of the key under the old name is removed; a different key is refused.
+    pki.legacy_ca_key.write_bytes(pki.ca_key.read_bytes())
+    removed = f"{pki.legacy_ca_key}: removed (a second copy of the CA private key {pki.ca_key})"
+    assert migrate(pki) == [removed]
+    assert not pki.legacy_ca_key.exists()
+    other = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    pki.legacy_ca_key.write_bytes(
+        other.private_bytes(
+            serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+        )
+    )
+    with pytest.raises(SecurityError, match=r"an old-layout CA private key next to a different ca-key\.pem"):
+        migrate(pki)
+    assert pki.legacy_ca_key.is_file() and pki.ca_key.is_file()
+
+
+def test_migrate_on_no_pki_writes_nothing(tmp_path: Path) -> None:
+    assert migrate(Pki.at(tmp_path / "none")) == []
+    assert not (tmp_path / "none").exists()
+
+
+def test_provision_upgrades_an_old_home_and_keeps_its_users(tmp_path: Path) -> None:
+    home = SecurityHome(tmp_path / "home")
+    assert provision(home) is not None  # first use: PKI and the engineer account
+    pki, key = _old_layout_of(home.pki)
+    assert provision(home) is None  # users exist: no new account
+    assert pki.ca_key.read_bytes() == key and not pki.legacy_ca_key.exists() and pki.exists()
