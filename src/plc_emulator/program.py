@@ -1053,8 +1053,9 @@ class PlcProgram:
         """Every PLC node's value the program owns, keyed by tag path (plain Python types).
 
         All variables of :func:`tanklab.tags.plc_tags` except :data:`RUNTIME_OWNED_TAGS`,
-        ``PLC.LIC*.Block`` and ``PLC.Identity.*`` (constant: the nodes keep their initial values). A bad PV is published as its last good value (0 before the first
-        one), with its quality on ``PLC.IO.LT*.Good`` and ``PLC.Alarms.LIC*PvBad``.
+        ``PLC.LIC*.Block`` and ``PLC.Identity.*`` (constant: the nodes keep their initial
+        values). A bad PV is published as its last good value (0 before the first one), with its
+        quality on ``PLC.IO.LT*.Good`` and ``PLC.Alarms.LIC*PvBad``.
         """
         v: dict[str, Any] = {}
         for lp in self.loops:

@@ -19,10 +19,14 @@
 
 Endpoints (every command): ``--plant-url`` / ``--plc-url`` / ``--supervisor-url``, else
 ``TANKLAB_PLANT_URL`` / ``TANKLAB_PLC_URL`` / ``TANKLAB_SUPERVISOR_URL``, else ``--base-port N``
-(or ``TANKLAB_BASE_PORT``) giving N, N+1, N+2 on ``--host`` (default 127.0.0.1), else the site
-config's endpoints (``--config``, ``TANKLAB_CONFIG``, default the Energies sim: 4840, 4841, 4842)
-with ``--host`` replacing their host when given. The site config also says which tanks, valves,
-loops and ranges exist, so names are checked before anything is sent.
+(or ``TANKLAB_BASE_PORT``) giving N, N+1, N+2 on ``--host`` (default 127.0.0.1), else the given
+site config's endpoints, else 4840, 4841, 4842, with ``--host`` replacing their host when given.
+
+The site (which tanks, valves, loops and ranges exist, so names are checked before anything is
+sent) is ``--config``, else ``TANKLAB_CONFIG``, else the stack's own: each tier publishes its
+site name, config digest and config (``<Tier>.Identity.*``, :mod:`tanklab.identity`). Every
+connection compares them with the site and refuses another site or config in one line, exit 2
+(:class:`SiteMismatchError`, decision 0020).
 
 Units at the command line: levels in m, openings 0..1, flows in m^3/s, a manual output in
 percent of the ManualMV's EURange (read from the PLC itself).
@@ -303,6 +307,8 @@ class Stack:
     _origin: str = field(default="", repr=False)
     _tags: dict[Tier, dict[str, Tag]] = field(default_factory=dict, repr=False)
     _clients: dict[Tier, TierClient] = field(default_factory=dict, repr=False)
+    unreached: dict[Tier, UnreachableError] = field(default_factory=dict, repr=False)
+    """Why each tier :meth:`resolve` tried did not answer."""
 
     def __post_init__(self) -> None:
         if self.given is not None:
@@ -339,20 +345,19 @@ class Stack:
         tiers, then the others, until one answers, and take the site it publishes.
 
         The connected client is kept for :meth:`client`. A refused login or a tier publishing
-        no identity stops the search; if no tier answers, the first one's UnreachableError.
+        no identity stops the search; if no tier answers, the first one's UnreachableError
+        (every tier's is in ``unreached``).
         """
         if self.resolved:
             return
         order = [*prefer, *(t for t in TIERS if t not in prefer)]
-        first: UnreachableError | None = None
         for tier in order:
             try:
                 await self.client(tier).connect()
                 return
             except UnreachableError as e:
-                first = first or e
-        assert first is not None
-        raise first
+                self.unreached[tier] = e
+        raise self.unreached[order[0]]
 
     def accept(self, tier: Tier, url: str, values: Mapping[str, Any]) -> None:
         """Check (or, before the site is known, take) what a tier says it runs.
@@ -1011,7 +1016,8 @@ ConfigOpt = Annotated[
     typer.Option(
         "--config",
         "-c",
-        help="Site YAML: names, ranges, endpoints (env TANKLAB_CONFIG; default: Energies sim).",
+        help="Site YAML the stack must run: checked against every tier's identity (env "
+        "TANKLAB_CONFIG; default: the site the stack publishes).",
     ),
 ]
 HostOpt = Annotated[
@@ -1633,6 +1639,22 @@ def render_status(stack: Stack, doc: dict[str, Any]) -> Group:
     return Group(*parts)
 
 
+def _print_unresolved(stack: Stack, as_json: bool) -> None:
+    """status when no tier answered and no site was given: each tier and why, no site."""
+    if as_json:
+        doc: dict[str, Any] = {"site": None, "config_digest": None}
+        for tier in TIERS:
+            e = stack.unreached[tier]
+            doc[tier] = {"reachable": False, "url": e.url, "error": e.reason}
+        typer.echo(json.dumps(doc, indent=2))
+        return
+    width = max(len(e.url) for e in stack.unreached.values())
+    typer.echo("site unknown: no tier answered")
+    for tier in TIERS:
+        e = stack.unreached[tier]
+        typer.echo(f"{tier:<11}{e.url:<{width}}  UNREACHABLE: {e.reason}")
+
+
 def status(
     as_json: JsonOpt = False,
     config: ConfigOpt = None,
@@ -1651,7 +1673,11 @@ def status(
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
 
     async def main() -> int:
-        await stack.resolve("plc", "plant")
+        try:
+            await stack.resolve("plc", "plant")
+        except UnreachableError as e:
+            _print_unresolved(stack, as_json)
+            raise e from None
         doc = await collect_status(stack)
         if as_json:
             typer.echo(json.dumps(doc, indent=2))

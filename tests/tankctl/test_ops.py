@@ -538,6 +538,18 @@ def test_status_with_a_tier_down_and_with_nothing_up(stack: Stack) -> None:
     assert nothing.code == 2
     assert one_line(nothing.stderr).startswith("tankctl: cannot reach plc at opc.tcp://127.0.0.1:")
     assert "UNREACHABLE: connection refused" in nothing.stdout
+    # Without a config nothing says which site it is: each tier and why, no site.
+    port = free_base_port()
+    nothing = proc("status", "--base-port", str(port), env={"TANKLAB_CONFIG": ""})
+    assert nothing.code == 2
+    assert one_line(nothing.stderr) == (
+        f"tankctl: cannot reach plc at opc.tcp://127.0.0.1:{port + 1}/tanklab/plc: connection refused"
+    )
+    urls = [f"opc.tcp://127.0.0.1:{port + k}/tanklab/{t}" for k, t in enumerate(TIERS)]
+    width = max(map(len, urls))
+    assert nothing.stdout.splitlines() == ["site unknown: no tier answered"] + [
+        f"{t:<11}{url:<{width}}  UNREACHABLE: connection refused" for t, url in zip(TIERS, urls, strict=True)
+    ]
 
 
 def _find(nodes: list[dict[str, Any]], path: str) -> dict[str, Any]:
