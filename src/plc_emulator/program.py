@@ -1052,9 +1052,10 @@ class PlcProgram:
     def values(self) -> dict[str, Any]:
         """Every PLC node's value the program owns, keyed by tag path (plain Python types).
 
-        All variables of :func:`tanklab.tags.plc_tags` except :data:`RUNTIME_OWNED_TAGS` and
-        ``PLC.LIC*.Block``. A bad PV is published as its last good value (0 before the first
-        one), with its quality on ``PLC.IO.LT*.Good`` and ``PLC.Alarms.LIC*PvBad``.
+        All variables of :func:`tanklab.tags.plc_tags` except :data:`RUNTIME_OWNED_TAGS`,
+        ``PLC.LIC*.Block`` and ``PLC.Identity.*`` (constant: the nodes keep their initial
+        values). A bad PV is published as its last good value (0 before the first one), with its
+        quality on ``PLC.IO.LT*.Good`` and ``PLC.Alarms.LIC*PvBad``.
         """
         v: dict[str, Any] = {}
         for lp in self.loops:

@@ -19,10 +19,14 @@
 
 Endpoints (every command): ``--plant-url`` / ``--plc-url`` / ``--supervisor-url``, else
 ``TANKLAB_PLANT_URL`` / ``TANKLAB_PLC_URL`` / ``TANKLAB_SUPERVISOR_URL``, else ``--base-port N``
-(or ``TANKLAB_BASE_PORT``) giving N, N+1, N+2 on ``--host`` (default 127.0.0.1), else the site
-config's endpoints (``--config``, ``TANKLAB_CONFIG``, default the Energies sim: 4840, 4841, 4842)
-with ``--host`` replacing their host when given. The site config also says which tanks, valves,
-loops and ranges exist, so names are checked before anything is sent.
+(or ``TANKLAB_BASE_PORT``) giving N, N+1, N+2 on ``--host`` (default 127.0.0.1), else the given
+site config's endpoints, else 4840, 4841, 4842, with ``--host`` replacing their host when given.
+
+The site (which tanks, valves, loops and ranges exist, so names are checked before anything is
+sent) is ``--config``, else ``TANKLAB_CONFIG``, else the stack's own: each tier publishes its
+site name, config digest and config (``<Tier>.Identity.*``, :mod:`tanklab.identity`). Every
+connection compares them with the site and refuses another site or config in one line, exit 2
+(:class:`SiteMismatchError`, decision 0020).
 
 Units at the command line: levels in m, openings 0..1, flows in m^3/s, a manual output in
 percent of the ManualMV's EURange (read from the PLC itself).
@@ -69,13 +73,14 @@ from tankctl.usage import OneLineUsage
 from tanklab.clock import Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import (
     ENV_ENDPOINT_VARS,
+    Endpoints,
     SiteConfig,
-    default_config_path,
     load_site,
     parse_endpoint_url,
 )
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
 from tanklab.errors import SecurityError, TanklabError
+from tanklab.identity import SiteIdentity, site_from_json
 from tanklab.scenario import (
     DisturbanceEvent,
     Event,
@@ -87,12 +92,15 @@ from tanklab.scenario import (
     SupervisorModeEvent,
     ValveEvent,
     check_against_site,
+    live_unappliable,
     load_scenario,
 )
 from tanklab.tags import (
     NAMESPACE_URI,
+    TIER_ROOTS,
     Tag,
     Tier,
+    identity_paths,
     plant_tags,
     plc_tags,
     supervisor_tags,
@@ -106,6 +114,7 @@ __all__ = [
     "CallRefusedError",
     "LoginRefusedError",
     "RefusedError",
+    "SiteMismatchError",
     "Stack",
     "TierClient",
     "UnreachableError",
@@ -170,6 +179,11 @@ BadUserAccessDenied to a wrong password, an unknown name and a locked account al
 a refusal tells an attacker nothing), BadIdentityTokenRejected to an anonymous session."""
 
 
+class SiteMismatchError(TanklabError):
+    """A tier runs another site, or the same site with another config, than the command was
+    given (``--config`` or the tier asked first), or publishes no identity (exit 2)."""
+
+
 class RefusedError(TanklabError):
     """A server answered a write with a Bad status code (exit 1)."""
 
@@ -227,7 +241,7 @@ def _parse_base_port(text: str, source: str) -> int:
 
 
 def resolve_endpoints(
-    site: SiteConfig,
+    site: SiteConfig | None,
     *,
     urls: Mapping[str, str | None],
     env: Mapping[str, str],
@@ -238,8 +252,8 @@ def resolve_endpoints(
 
     For each tier: its URL flag (``urls[tier]``), else ``TANKLAB_<TIER>_URL`` in ``env``, else
     ``base_port`` (or ``TANKLAB_BASE_PORT``) + 0, 1, 2 for plant, plc, supervisor on ``host``
-    (default 127.0.0.1), else the site's endpoint with ``host`` replacing its host when given.
-    Empty strings count as unset.
+    (default 127.0.0.1), else the site's endpoint (``None``: the default endpoints, 4840..4842 on
+    127.0.0.1) with ``host`` replacing its host when given. Empty strings count as unset.
 
     Raises
     ------
@@ -266,20 +280,121 @@ def resolve_endpoints(
         elif base is not None:
             out[tier] = f"opc.tcp://{host or '127.0.0.1'}:{base + k}/tanklab/{tier}"
         else:
-            ep = getattr(site.endpoints, tier)
+            ep = getattr(site.endpoints if site is not None else Endpoints(), tier)
             out[tier] = f"opc.tcp://{host or ep.host}:{ep.port}/tanklab/{tier}"
     return out
 
 
 @dataclass
 class Stack:
-    """What an operator command talks to: the site (names, ranges) and the tiers' URLs."""
+    """What an operator command talks to: the tiers' URLs and the site (names, ranges).
 
-    site: SiteConfig
+    The site is the one given (``--config`` or ``TANKLAB_CONFIG``, ``given``), or, when none
+    was, the one the first tier to answer publishes (:meth:`resolve`). Every connection reads
+    the tier's ``<Tier>.Identity`` nodes and refuses (:class:`SiteMismatchError`) a tier whose
+    site name or config digest differs from that site's, so a command never writes into a
+    stack with the names and ranges of another site (decision 0020).
+    """
+
+    given: SiteConfig | None
     urls: dict[Tier, str]
     timeout_s: float = DEFAULT_TIMEOUT_S
     identity: ClientIdentity | None = None
+    source: str = "--config"
+    """How the given site was given, for messages (``--config FILE``, ``TANKLAB_CONFIG=FILE``)."""
+    _site: SiteConfig | None = field(default=None, repr=False)
+    _expected: SiteIdentity | None = field(default=None, repr=False)
+    _origin: str = field(default="", repr=False)
     _tags: dict[Tier, dict[str, Tag]] = field(default_factory=dict, repr=False)
+    _clients: dict[Tier, TierClient] = field(default_factory=dict, repr=False)
+    unreached: dict[Tier, UnreachableError] = field(default_factory=dict, repr=False)
+    """Why each tier :meth:`resolve` tried did not answer."""
+
+    def __post_init__(self) -> None:
+        if self.given is not None:
+            self._site = self.given
+            self._expected = SiteIdentity.of(self.given)
+            self._origin = self.source
+
+    @property
+    def resolved(self) -> bool:
+        """Whether the site is known (given, or read from a tier)."""
+        return self._site is not None
+
+    @property
+    def site(self) -> SiteConfig:
+        """The site; only after :meth:`resolve` when none was given."""
+        if self._site is None:
+            raise RuntimeError("the site is not known before Stack.resolve()")
+        return self._site
+
+    @property
+    def site_identity(self) -> SiteIdentity:
+        """Name and config digest of :attr:`site`."""
+        if self._expected is None:
+            raise RuntimeError("the site is not known before Stack.resolve()")
+        return self._expected
+
+    @property
+    def origin(self) -> str:
+        """Where the site came from: ``--config FILE``, ``TANKLAB_CONFIG=FILE`` or ``plc at URL``."""
+        return self._origin
+
+    async def resolve(self, *prefer: Tier) -> None:
+        """Know the site: nothing to do when one was given; else connect to the ``prefer``
+        tiers, then the others, until one answers, and take the site it publishes.
+
+        The connected client is kept for :meth:`client`. A refused login or a tier publishing
+        no identity stops the search; if no tier answers, the first one's UnreachableError
+        (every tier's is in ``unreached``).
+        """
+        if self.resolved:
+            return
+        order = [*prefer, *(t for t in TIERS if t not in prefer)]
+        for tier in order:
+            try:
+                await self.client(tier).connect()
+                return
+            except UnreachableError as e:
+                self.unreached[tier] = e
+        raise self.unreached[order[0]]
+
+    def accept(self, tier: Tier, url: str, values: Mapping[str, Any]) -> None:
+        """Check (or, before the site is known, take) what a tier says it runs.
+
+        ``values`` are the tier's identity nodes by item (SiteName, ConfigDigest, Config).
+
+        Raises
+        ------
+        SiteMismatchError
+            No identity published, a Config that is not the digest's, or another site/config.
+        """
+        name, digest = values.get("SiteName"), values.get("ConfigDigest")
+        where = f"{tier} at {url}"
+        if not (isinstance(name, str) and name and isinstance(digest, str) and len(digest) == 64):
+            raise SiteMismatchError(
+                f"{where} publishes no site identity ({TIER_ROOTS[tier]}.Identity): cannot check which "
+                "site it runs"
+            )
+        seen = SiteIdentity(name, digest)
+        if self._expected is None:
+            text = values.get("Config")
+            site = site_from_json(text if isinstance(text, str) else "", f"{where}: Identity.Config")
+            if SiteIdentity.of(site) != seen:
+                raise SiteMismatchError(f"{where}: its Identity.Config is not the config of its ConfigDigest")
+            self._site, self._expected, self._origin = site, seen, where
+            return
+        if seen != self._expected:
+            given = self._origin if self._origin.startswith(("--config", "TANKLAB_CONFIG")) else ""
+            if given:
+                hint = "; give the stack's config, or no --config to take the site from the stack"
+                raise SiteMismatchError(
+                    f"site mismatch: {where} runs {seen}; {given} is {self._expected}{hint}"
+                )
+            raise SiteMismatchError(
+                f"site mismatch: {where} runs {seen}, but {self._origin} runs {self._expected}: "
+                "the stack's tiers run different sites"
+            )
 
     def has(self, tier: Tier) -> bool:
         """Whether the site has this tier (every site has a plant)."""
@@ -297,10 +412,10 @@ class Stack:
         return self._tags[tier]
 
     def client(self, tier: Tier) -> TierClient:
-        """A (not yet connected) client of ``tier``."""
-        return TierClient(
-            tier, self.urls[tier], self.tags(tier), self.timeout_s, self.identity or cli_identity()
-        )
+        """The client of ``tier`` (one per tier; connected by :meth:`TierClient.connect`)."""
+        if tier not in self._clients:
+            self._clients[tier] = TierClient(tier, self.urls[tier], self)
+        return self._clients[tier]
 
     # ---- local checks of names ------------------------------------------------------------
 
@@ -342,22 +457,29 @@ def make_stack(
     supervisor_url: str | None,
     timeout: float,
     *,
-    default_config: Path | None = None,
+    endpoints_of: SiteConfig | None = None,
 ) -> Stack:
-    """The :class:`Stack` from the common options (``--config`` else ``TANKLAB_CONFIG`` else
-    ``default_config`` else the default site); every failure is a :class:`TanklabError`."""
+    """The :class:`Stack` from the common options; every failure is a :class:`TanklabError`.
+
+    The site is ``--config``, else ``TANKLAB_CONFIG``, else none: the stack's own, read at the
+    first connection. The endpoints' last fallback is the given site's, else ``endpoints_of``'s
+    (a scenario's site file), else the default endpoints.
+    """
     if not (timeout > 0 and math.isfinite(timeout)):
         raise UsageError(f"--timeout must be a positive number of seconds, got {timeout}")
-    path = config or (Path(e) if (e := _env("TANKLAB_CONFIG")) else None) or default_config
-    site = load_site(path or default_config_path())
+    given, source = None, ""
+    if config is not None:
+        given, source = load_site(config), f"--config {config}"
+    elif e := _env("TANKLAB_CONFIG"):
+        given, source = load_site(e), f"TANKLAB_CONFIG={e}"
     urls = resolve_endpoints(
-        site,
+        given or endpoints_of,
         urls={"plant": plant_url, "plc": plc_url, "supervisor": supervisor_url},
         env=os.environ,
         base_port=base_port,
         host=host,
     )
-    return Stack(site, urls, timeout, cli_identity())
+    return Stack(given, urls, timeout, cli_identity(), source)
 
 
 # --------------------------------------------------------------------------------------------
@@ -430,16 +552,19 @@ class TierClient:
     :class:`RefusedError`. Node ids come from the namespace index of ``urn:tanklab``, looked up.
     """
 
-    def __init__(
-        self, tier: Tier, url: str, tags: dict[str, Tag], timeout_s: float, identity: ClientIdentity
-    ) -> None:
+    def __init__(self, tier: Tier, url: str, stack: Stack) -> None:
         self.tier = tier
         self.url = url
-        self.tags = tags
-        self.timeout_s = timeout_s
-        self.identity = identity
+        self.stack = stack
+        self.timeout_s = stack.timeout_s
+        self.identity = stack.identity or cli_identity()
         self._client: Client | None = None
         self.idx = 0
+
+    @property
+    def tags(self) -> dict[str, Tag]:
+        """The contract's tags of this tier for the stack's site, by path."""
+        return self.stack.tags(self.tier)
 
     @property
     def client(self) -> Client:
@@ -448,7 +573,10 @@ class TierClient:
         return self._client
 
     async def connect(self) -> TierClient:
-        """Connect and look the namespace index up (both within the timeout)."""
+        """Connect, look the namespace index up and check the tier's site identity with
+        :meth:`Stack.accept` (each within the timeout); a no-op when connected."""
+        if self._client is not None:
+            return self
         client = new_client(self.url, self.timeout_s)
         client.name = "tankctl"
         try:
@@ -476,6 +604,15 @@ class TierClient:
             missing = f"no {NAMESPACE_URI} namespace" if isinstance(e, ValueError) else None
             raise UnreachableError(self.tier, self.url, missing or _describe(e, self.timeout_s)) from None
         self._client, self.idx = client, int(idx)
+        paths = identity_paths(self.tier)
+        if self.stack.resolved:  # the Config text is only needed to learn the site
+            del paths["Config"]
+        try:
+            values = await self.read(list(paths.values()))
+            self.stack.accept(self.tier, self.url, {item: values[p] for item, p in paths.items()})
+        except TanklabError:
+            await self.close()
+            raise
         return self
 
     async def close(self) -> None:
@@ -822,7 +959,7 @@ def _stack_or_exit(
     plc_url: str | None,
     supervisor_url: str | None,
     timeout: float,
-    default_config: Path | None = None,
+    endpoints_of: SiteConfig | None = None,
 ) -> Stack:
     try:
         return make_stack(
@@ -833,7 +970,7 @@ def _stack_or_exit(
             plc_url,
             supervisor_url,
             timeout,
-            default_config=default_config,
+            endpoints_of=endpoints_of,
         )
     except TanklabError as e:
         raise _fail(str(e), 2) from None
@@ -879,7 +1016,8 @@ ConfigOpt = Annotated[
     typer.Option(
         "--config",
         "-c",
-        help="Site YAML: names, ranges, endpoints (env TANKLAB_CONFIG; default: Energies sim).",
+        help="Site YAML the stack must run: checked against every tier's identity (env "
+        "TANKLAB_CONFIG; default: the site the stack publishes).",
     ),
 ]
 HostOpt = Annotated[
@@ -929,9 +1067,10 @@ def setpoint(
 ) -> None:
     """Write a loop's setpoint, in m, to the PLC (PLC.LIC{j}.SP; the PLC range-checks it)."""
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
-    name = _check(lambda: stack.loop(loop))
 
     async def main() -> int:
+        await stack.resolve("plc")
+        name = stack.loop(loop)
         async with stack.client("plc") as plc:
             typer.echo(await _write_and_tell(plc, f"PLC.{name}.SP", value))
         return 0
@@ -967,10 +1106,11 @@ def leak(
 ) -> None:
     """Open a tank's leak valve to the drain (Plant.T{i}.Leak, 0..1); 'off' closes it."""
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
-    name = _check(lambda: stack.tank(tank))
     value = _check(lambda: _opening(opening, "the leak opening", {"off": 0.0}))
 
     async def main() -> int:
+        await stack.resolve("plant")
+        name = stack.tank(tank)
         async with stack.client("plant") as plant:
             typer.echo(await _write_and_tell(plant, f"Plant.{name}.Leak", value))
         return 0
@@ -993,10 +1133,11 @@ def valve(
 ) -> None:
     """Set a connecting or outlet valve's opening (Plant.V{mn}.Opening, 0..1): a clog."""
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
-    vname = _check(lambda: stack.valve(name))
     value = _check(lambda: _opening(opening, "the valve opening", {"open": 1.0, "closed": 0.0}))
 
     async def main() -> int:
+        await stack.resolve("plant")
+        vname = stack.valve(name)
         async with stack.client("plant") as plant:
             typer.echo(await _write_and_tell(plant, f"Plant.{vname}.Opening", value))
         return 0
@@ -1057,11 +1198,12 @@ def loop_command(
 ) -> None:
     """Switch a loop: 'manual [PERCENT]' (bumpless, then the output to PERCENT), 'auto', 'remote'."""
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
-    name = _check(lambda: stack.loop(loop))
     new_mode = _check(lambda: _loop_mode(mode))
     _check(lambda: _check_percent(percent, new_mode))
 
     async def main() -> int:
+        await stack.resolve("plc")
+        name = stack.loop(loop)
         async with stack.client("plc") as plc:
             for line in await _apply_loop_mode(plc, name, new_mode, percent):
                 typer.echo(line)
@@ -1089,10 +1231,11 @@ def mode(
 ) -> None:
     """Switch the supervisor's mode (Supervisor.Mode); it takes effect at its next cycle."""
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
-    _check(lambda: stack.require("supervisor"))
     new = _check(lambda: _supervisor_mode(name))
 
     async def main() -> int:
+        await stack.resolve("supervisor")
+        stack.require("supervisor")
         async with stack.client("supervisor") as sup:
             typer.echo(await _write_and_tell(sup, "Supervisor.Mode", int(new)))
         return 0
@@ -1126,7 +1269,7 @@ _SET_HINTS = {**_GAIN_HINTS, "BadInvalidState": "the loop's block has no PID gai
 
 def _change_gains(
     stack: Stack,
-    name: str,
+    loop: str,
     new: tuple[float | None, float | None, float | None],
     reset: bool,
     release: bool,
@@ -1137,10 +1280,12 @@ def _change_gains(
     for label, g in zip(("--kp", "--ki", "--kd"), new, strict=True):
         if g is not None and not math.isfinite(g):
             raise _fail(f"{label} must be a finite number, got {g}", 2)
-    tags = stack.tags("plc")
-    p = f"PLC.{name}"
 
     async def main() -> int:
+        await stack.resolve("plc")
+        name = stack.loop(loop)
+        tags = stack.tags("plc")
+        p = f"PLC.{name}"
         async with stack.client("plc") as plc:
             paths = [f"{p}.{g}" for g in ("Kp", "Ki", "Kd", "GainSource")]
             before = await plc.read(paths)
@@ -1205,12 +1350,13 @@ def gains(
     """A loop's applied Kp, Ki, Kd and GainSource, and the supervisor's RLS state for it; with
     --kp/--ki/--kd, --reset or --release, change them (one call, one line)."""
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
-    name = _check(lambda: stack.loop(loop))
     if reset or release or kp is not None or ki is not None or kd is not None:
-        _change_gains(stack, name, (kp, ki, kd), reset, release)
+        _change_gains(stack, loop, (kp, ki, kd), reset, release)
         return
 
     async def main() -> int:
+        await stack.resolve("plc")
+        name = stack.loop(loop)
         p = f"PLC.{name}"
         plc_paths = [f"{p}.{g}" for g in ("Kp", "Ki", "Kd", "GainSource", "Block", "Mode")]
         s = f"Supervisor.RLS.{name}"
@@ -1390,7 +1536,13 @@ async def collect_status(stack: Stack) -> dict[str, Any]:
     tiers = [t for t in TIERS if stack.has(t)]
     results = await asyncio.gather(*(_read_tier(stack, t) for t in tiers))
     shape = {"plant": _plant_json, "plc": _plc_json, "supervisor": _supervisor_json}
-    doc: dict[str, Any] = {"site": stack.site.name, "plant": None, "plc": None, "supervisor": None}
+    doc: dict[str, Any] = {
+        "site": stack.site.name,
+        "config_digest": stack.site_identity.digest,
+        "plant": None,
+        "plc": None,
+        "supervisor": None,
+    }
     for tier, res in zip(tiers, results, strict=True):
         if isinstance(res, UnreachableError):
             doc[tier] = {"reachable": False, "url": stack.urls[tier], "error": res.reason}
@@ -1421,7 +1573,10 @@ def render_status(stack: Stack, doc: dict[str, Any]) -> Group:
     site = stack.site
     shown = [t for t in TIERS if doc[t] is not None]
     url_width = max(len(doc[t]["url"]) for t in shown)
-    lines = [Text(f"{site.name}", style="bold")]
+    lines = [
+        Text(f"{site.name}", style="bold")
+        + Text(f"  config {stack.site_identity.short} (from {stack.origin})")
+    ]
     for tier in shown:
         d = doc[tier]
         state = Text(_tier_state(tier, d), style="" if d["reachable"] else "bold red")
@@ -1484,6 +1639,22 @@ def render_status(stack: Stack, doc: dict[str, Any]) -> Group:
     return Group(*parts)
 
 
+def _print_unresolved(stack: Stack, as_json: bool) -> None:
+    """status when no tier answered and no site was given: each tier and why, no site."""
+    if as_json:
+        doc: dict[str, Any] = {"site": None, "config_digest": None}
+        for tier in TIERS:
+            e = stack.unreached[tier]
+            doc[tier] = {"reachable": False, "url": e.url, "error": e.reason}
+        typer.echo(json.dumps(doc, indent=2))
+        return
+    width = max(len(e.url) for e in stack.unreached.values())
+    typer.echo("site unknown: no tier answered")
+    for tier in TIERS:
+        e = stack.unreached[tier]
+        typer.echo(f"{tier:<11}{e.url:<{width}}  UNREACHABLE: {e.reason}")
+
+
 def status(
     as_json: JsonOpt = False,
     config: ConfigOpt = None,
@@ -1502,6 +1673,11 @@ def status(
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
 
     async def main() -> int:
+        try:
+            await stack.resolve("plc", "plant")
+        except UnreachableError as e:
+            _print_unresolved(stack, as_json)
+            raise e from None
         doc = await collect_status(stack)
         if as_json:
             typer.echo(json.dumps(doc, indent=2))
@@ -1588,20 +1764,20 @@ def browse(
     Exit 2 (after printing the tiers that answered) if a tier asked for does not answer.
     """
     stack = _stack_or_exit(config, host, base_port, plant_url, plc_url, supervisor_url, timeout)
+    key = tier.strip().lower() if tier is not None else None
+    if key is not None and key not in TIERS:
+        raise _fail(f"tier must be plant, plc or supervisor, got {tier!r}", 2)
+
+    asked: list[Tier] = [t for t in TIERS if t == key]
 
     def which() -> list[Tier]:
-        if tier is None:
-            return [t for t in TIERS if stack.has(t)]
-        key = tier.strip().lower()
-        for t in TIERS:
-            if t == key:
-                stack.require(t)
-                return [t]
-        raise UsageError(f"tier must be plant, plc or supervisor, got {tier!r}")
-
-    tiers = _check(which)
+        for t in asked:
+            stack.require(t)
+        return asked or [t for t in TIERS if stack.has(t)]
 
     async def main() -> int:
+        await stack.resolve(*asked)
+        tiers = which()
         results = await asyncio.gather(*(_browse_tier(stack, t) for t in tiers))
         doc: dict[str, Any] = {}
         console = _console()
@@ -1827,6 +2003,7 @@ def watch(
     _check(check)
 
     async def main() -> int:
+        await stack.resolve("plant", "plc")
         site = stack.site
         plant = _Source(
             stack.client("plant"), ["Plant.Sim.Time"] + [f"Plant.{t}.Level" for t in site.tank_names]
@@ -1928,8 +2105,9 @@ async def _apply_event(clients: Mapping[Tier, TierClient], ev: Event) -> list[st
     ]
 
 
-def _initial_events(scenario: Scenario) -> tuple[list[Event], list[str]]:
-    """The parts of ``initial`` a running stack can take, as events at 0 s, and notes on the rest."""
+def _initial_events(scenario: Scenario) -> list[Event]:
+    """The parts of ``initial`` a running stack can take, as events at 0 s (the rest is in
+    :func:`tanklab.scenario.live_unappliable`)."""
     init = scenario.initial
     events: list[Event] = []
     for name, opening in init.valves.items():
@@ -1940,12 +2118,7 @@ def _initial_events(scenario: Scenario) -> tuple[list[Event], list[str]]:
         events.append(SetpointEvent(at_s=0, kind="setpoint", loop=name, value_m=sp))
     for name, m in init.modes.items():
         events.append(LoopModeEvent(at_s=0, kind="loop_mode", loop=name, mode=m))
-    notes = []
-    if init.levels_m is not None:
-        notes.append("initial.levels_m not applied: a running plant's levels are not writable")
-    if init.pump_commands is not None:
-        notes.append("initial.pump_commands not applied: the PLC owns the pump commands")
-    return events, notes
+    return events
 
 
 def scenario_run(
@@ -1961,6 +2134,15 @@ def scenario_run(
     until_end: Annotated[
         bool, typer.Option("--until-end", help="After the last event, wait until the scenario's duration_s.")
     ] = False,
+    ignore_unappliable: Annotated[
+        bool,
+        typer.Option(
+            "--ignore-unappliable",
+            help="Run the events even though some of the scenario's fields cannot be applied to a "
+            "running stack (initial levels, variant settings, another config of the site); each is "
+            "printed as 'not applied:'.",
+        ),
+    ] = False,
     config: ConfigOpt = None,
     host: HostOpt = None,
     base_port: BasePortOpt = None,
@@ -1971,30 +2153,38 @@ def scenario_run(
 ) -> None:
     """Apply a scenario's initial settings and timed events to the running stack.
 
-    Times are the plant's model time (Plant.Sim.Time) since the command started. The site is
-    --config, else TANKLAB_CONFIG, else the scenario's own site file.
+    Times are the plant's model time (Plant.Sim.Time) since the command started. The stack must
+    run the scenario's site (its name; another config of it is a field not applied). Fields a
+    running stack cannot take are refused in one line unless --ignore-unappliable.
     """
     try:
         scenario, site_path = load_scenario(file)
+        scenario_site = load_site(site_path)
     except TanklabError as e:
         raise _fail(str(e), 2) from None
     stack = _stack_or_exit(
-        config, host, base_port, plant_url, plc_url, supervisor_url, timeout, default_config=site_path
+        config, host, base_port, plant_url, plc_url, supervisor_url, timeout, endpoints_of=scenario_site
     )
-    try:
-        check_against_site(scenario, stack.site)
-        for tier in _event_tiers(scenario):
-            stack.require(tier)
-    except TanklabError as e:
-        raise _fail(str(e), 2) from None
 
     async def main() -> int:
         needed = [t for t in TIERS if t in _event_tiers(scenario)]
+        await stack.resolve(*needed)
+        for tier in needed:
+            stack.require(tier)
         clients = {t: stack.client(t) for t in needed}
         try:
-            for c in clients.values():  # every tier the scenario writes must answer first
+            for c in clients.values():  # every tier the scenario writes must answer (and match) first
                 await c.connect()
-            return await _play(scenario, clients, speed_from_plant=speed_from_plant, until_end=until_end)
+            skipped = _check_scenario(scenario, SiteIdentity.of(scenario_site), stack)
+            if skipped and not ignore_unappliable:
+                raise UsageError(
+                    f"scenario {scenario.name}: {len(skipped)} field{'s' if len(skipped) > 1 else ''} cannot "
+                    f"be applied to a running stack: {'; '.join(skipped)}; --ignore-unappliable runs its "
+                    "events without them"
+                )
+            return await _play(
+                scenario, clients, skipped, speed_from_plant=speed_from_plant, until_end=until_end
+            )
         finally:
             for c in clients.values():
                 await c.close()
@@ -2002,8 +2192,35 @@ def scenario_run(
     _run(main)
 
 
+def _check_scenario(scenario: Scenario, written_for: SiteIdentity, stack: Stack) -> list[str]:
+    """Refuse a scenario for another site; return the fields the running stack cannot take.
+
+    The scenario's site file must name the stack's site (else :class:`SiteMismatchError`); a
+    different config of that site (another digest) is listed first among the fields not
+    applied, since the scenario's author meant other parameters than the stack runs.
+    """
+    runs = stack.site_identity
+    if written_for.name != runs.name:
+        raise SiteMismatchError(
+            f"scenario {scenario.name} is written for {written_for} (site: {scenario.site}), but the "
+            f"stack runs {runs} ({stack.origin})"
+        )
+    check_against_site(scenario, stack.site)
+    skipped = live_unappliable(scenario)
+    if written_for.digest != runs.digest:
+        skipped.insert(
+            0, f"site (its {scenario.site} is config {written_for.short}, the stack runs {runs.short})"
+        )
+    return skipped
+
+
 async def _play(
-    scenario: Scenario, clients: Mapping[Tier, TierClient], *, speed_from_plant: bool, until_end: bool
+    scenario: Scenario,
+    clients: Mapping[Tier, TierClient],
+    skipped: Sequence[str],
+    *,
+    speed_from_plant: bool,
+    until_end: bool,
 ) -> int:
     plant = clients["plant"]
 
@@ -2014,14 +2231,14 @@ async def _play(
         return t
 
     t0 = await now()
-    initial, notes = _initial_events(scenario)
+    initial = _initial_events(scenario)
     events = scenario.sorted_events()
     typer.echo(
         f"scenario {scenario.name}: {len(events)} events over {scenario.duration_s:g} s of model time, "
         f"starting at plant time {t0:.1f} s"
     )
-    for note in notes:
-        typer.echo(f"note: {note}")
+    for field_ in skipped:
+        typer.echo(f"not applied: {field_}")
     applied = 0
 
     def say(t: float, label: str, lines: list[str]) -> None:

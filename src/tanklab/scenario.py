@@ -286,3 +286,30 @@ def check_against_site(scenario: Scenario, site: SiteConfig) -> None:
             raise ConfigError(
                 f"{where}: events[{i}].flow_m3_s: must lie in [-{limit:g}, {limit:g}] (the largest pump)"
             )
+
+
+def live_unappliable(scenario: Scenario) -> list[str]:
+    """What a running stack cannot take from ``scenario``, one ``field (reason)`` each.
+
+    ``tankctl scenario run`` applies the initial valves, leaks, setpoints and modes and the
+    timed events; a live stack cannot take the initial levels and pump commands (the plant's
+    levels are states, the PLC owns the pumps) nor any variant setting a variant states
+    explicitly (its supervisor mode, scan period and ``set`` overrides: a variant is a
+    co-simulation run of a changed site, and a running stack's site is fixed at its start).
+    Settings left at their defaults are not listed (a scenario without variants lists none).
+    """
+    out: list[str] = []
+    init = scenario.initial
+    if init.levels_m is not None:
+        out.append("initial.levels_m (a running plant's levels are not writable)")
+    if init.pump_commands is not None:
+        out.append("initial.pump_commands (the PLC owns the pump commands)")
+    for v in scenario.variants:
+        where = f"variants[{v.name}]"
+        if "supervisor_mode" in v.model_fields_set:
+            out.append(f"{where}.supervisor_mode {v.supervisor_mode} (variants are `tankctl simulate` runs)")
+        if v.scan_period_s is not None:
+            out.append(f"{where}.scan_period_s (the PLC's scan period is fixed at its start)")
+        for path in v.set:
+            out.append(f"{where}.set {path} (a running stack's site is fixed at its start)")
+    return out

@@ -21,6 +21,7 @@ from typing import Literal
 
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SensorFault, SupervisorMode
+from tanklab.identity import SiteIdentity, canonical_json
 
 NAMESPACE_URI = "urn:tanklab"
 """Namespace URI of every tanklab node; clients look its index up, never hard-code it."""
@@ -257,9 +258,48 @@ def _link_status(b: _Builder, prefix: str, peer: str) -> None:
     )
 
 
+IDENTITY_ITEMS = ("SiteName", "ConfigDigest", "Config")
+"""What each tier says about the site it runs (:mod:`tanklab.identity`), one node each."""
+
+TIER_ROOTS: dict[Tier, str] = {"plant": "Plant", "plc": "PLC", "supervisor": "Supervisor"}
+"""The root object of each tier's nodes."""
+
+
+def identity_paths(tier: Tier) -> dict[str, str]:
+    """Path of each :data:`IDENTITY_ITEMS` node of ``tier`` (``PLC.Identity.ConfigDigest``)."""
+    return {item: f"{TIER_ROOTS[tier]}.Identity.{item}" for item in IDENTITY_ITEMS}
+
+
+def _identity(b: _Builder, site: SiteConfig) -> None:
+    """The identity nodes: constant for the life of the process, so their initial values."""
+    paths = identity_paths(b.tier)
+    ident = SiteIdentity.of(site)
+    b.var(
+        paths["SiteName"],
+        DataType.STRING,
+        "Name of the site this tier runs (the config's name).",
+        initial=ident.name,
+    )
+    b.var(
+        paths["ConfigDigest"],
+        DataType.STRING,
+        "sha256 (64 hex digits) of the canonical JSON of the site config this tier was started with, "
+        "without endpoints, stack, plant.state_file and plc.retain_file; operator commands compare it "
+        "with their --config's and show its first 16 digits.",
+        initial=ident.digest,
+    )
+    b.var(
+        paths["Config"],
+        DataType.STRING,
+        "That canonical JSON itself: an operator command given no --config takes the site from it.",
+        initial=canonical_json(site),
+    )
+
+
 def plant_tags(site: SiteConfig) -> list[Tag]:
     """Nodes of the plant simulator for ``site``."""
     b = _Builder("plant")
+    _identity(b, site)
     plant = site.plant
     for tank in plant.tanks:
         i = tank.name[1:]
@@ -405,6 +445,7 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
     if site.plc is None:
         raise ValueError(f"site {site.name!r} has no plc section")
     b = _Builder("plc")
+    _identity(b, site)
     plc = site.plc
     for lp in plc.loops:
         pump = site.plant.pump(lp.actuator)
@@ -599,6 +640,7 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
     if site.supervisor is None or site.plc is None:
         raise ValueError(f"site {site.name!r} has no supervisor section")
     b = _Builder("supervisor")
+    _identity(b, site)
     sup = site.supervisor
     pumps = ", ".join(site.pump_names)
     zs = ", ".join(sup.mpc.controlled)

@@ -29,12 +29,26 @@ import typer
 from typer.testing import CliRunner
 
 from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, stop_process, wait_until
-from tankctl.ops import TIERS, UsageError, level_bar, register, resolve_endpoints, sparkline
+from tankctl.ops import (
+    TIERS,
+    SiteMismatchError,
+    UsageError,
+    level_bar,
+    register,
+    resolve_endpoints,
+    sparkline,
+)
+from tankctl.ops import Stack as OpsStack
 from tanklab.config import load_site
 from tanklab.enums import LoopMode, SupervisorMode
+from tanklab.identity import SiteIdentity, canonical_json
+from tanklab.tags import Tier
 from tanklab.ua import resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
+TWO_TANK = "configs/two_tank_interacting.yaml"
+ENERGIES = SiteIdentity.of(load_site(CONFIG))
+"""What the module's stack publishes in ``<Tier>.Identity``."""
 SPEED = "20"
 pytestmark = pytest.mark.process
 
@@ -222,6 +236,47 @@ def test_endpoint_precedence_flags_env_base_port_site() -> None:
         resolve_endpoints(site, urls={}, env={"TANKLAB_BASE_PORT": "abc"})
     with pytest.raises(UsageError, match=re.escape("--base-port must be 1..65533")):
         resolve_endpoints(site, urls={}, env={}, base_port=65534)
+
+
+def test_endpoints_without_a_site_are_the_default_ones() -> None:
+    default = resolve_endpoints(None, urls={}, env={})
+    assert default == {t: f"opc.tcp://127.0.0.1:{4840 + k}/tanklab/{t}" for k, t in enumerate(TIERS)}
+
+
+def _identity(site_config: str) -> dict[str, str]:
+    site = load_site(ROOT / site_config)
+    ident = SiteIdentity.of(site)
+    return {"SiteName": ident.name, "ConfigDigest": ident.digest, "Config": canonical_json(site)}
+
+
+def test_a_stack_checks_what_each_tier_says_it_runs() -> None:
+    urls: dict[Tier, str] = dict.fromkeys(TIERS, "U")
+    given = OpsStack(load_site(CONFIG), urls, source=f"--config {CONFIG}")
+    given.accept("plc", "U", _identity(CONFIG))  # the same site and config: accepted
+    two = SiteIdentity.of(load_site(ROOT / TWO_TANK))
+    with pytest.raises(SiteMismatchError) as e:
+        given.accept("plc", "U", _identity(TWO_TANK))
+    assert str(e.value) == (
+        f"site mismatch: plc at U runs two_tank_interacting (config {two.short}); --config {CONFIG} is "
+        f"three_tank_energies_sim (config {ENERGIES.short}); give the stack's config, or no --config "
+        "to take the site from the stack"
+    )
+    with pytest.raises(SiteMismatchError, match=r"^plant at U publishes no site identity \(Plant.Identity\)"):
+        given.accept("plant", "U", {"SiteName": None, "ConfigDigest": None})
+    # No site given: the first tier's published config is the site, the others must agree.
+    taken = OpsStack(None, urls)
+    assert not taken.resolved
+    taken.accept("plc", "U", _identity(CONFIG))
+    assert (taken.site.name, taken.site_identity, taken.origin) == (ENERGIES.name, ENERGIES, "plc at U")
+    with pytest.raises(
+        SiteMismatchError, match=r"but plc at U runs three_tank_energies_sim .* different sites"
+    ):
+        taken.accept("supervisor", "V", _identity(TWO_TANK))
+    forged = {**_identity(CONFIG), "Config": _identity(TWO_TANK)["Config"]}
+    with pytest.raises(
+        SiteMismatchError, match=r"its Identity\.Config is not the config of its ConfigDigest"
+    ):
+        OpsStack(None, urls).accept("plc", "U", forged)
 
 
 def test_sparkline_and_bar_scale_their_inputs() -> None:
@@ -423,8 +478,9 @@ def test_status_json_has_the_documented_shape(stack: Stack) -> None:
     ran = cli("status", "--json", *base(stack))
     assert ran.code == 0, ran.stderr
     doc = json.loads(ran.stdout)
-    assert set(doc) == {"site", "plant", "plc", "supervisor"}
+    assert set(doc) == {"site", "config_digest", "plant", "plc", "supervisor"}
     assert doc["site"] == "three_tank_energies_sim"
+    assert doc["config_digest"] == ENERGIES.digest
     plant, plc, sup = doc["plant"], doc["plc"], doc["supervisor"]
     assert all(d["reachable"] is True for d in (plant, plc, sup))
     assert plant["url"] == stack.url("plant")
@@ -482,6 +538,18 @@ def test_status_with_a_tier_down_and_with_nothing_up(stack: Stack) -> None:
     assert nothing.code == 2
     assert one_line(nothing.stderr).startswith("tankctl: cannot reach plc at opc.tcp://127.0.0.1:")
     assert "UNREACHABLE: connection refused" in nothing.stdout
+    # Without a config nothing says which site it is: each tier and why, no site.
+    port = free_base_port()
+    nothing = proc("status", "--base-port", str(port), env={"TANKLAB_CONFIG": ""})
+    assert nothing.code == 2
+    assert one_line(nothing.stderr) == (
+        f"tankctl: cannot reach plc at opc.tcp://127.0.0.1:{port + 1}/tanklab/plc: connection refused"
+    )
+    urls = [f"opc.tcp://127.0.0.1:{port + k}/tanklab/{t}" for k, t in enumerate(TIERS)]
+    width = max(map(len, urls))
+    assert nothing.stdout.splitlines() == ["site unknown: no tier answered"] + [
+        f"{t:<11}{url:<{width}}  UNREACHABLE: connection refused" for t, url in zip(TIERS, urls, strict=True)
+    ]
 
 
 def _find(nodes: list[dict[str, Any]], path: str) -> dict[str, Any]:
@@ -563,3 +631,105 @@ def test_unreachable_endpoint_is_one_line_naming_it_and_exit_2() -> None:
     assert ran.code == 2
     assert one_line(ran.stderr) == f"tankctl: cannot reach plc at {url}: connection refused"
     assert ran.stdout == ""
+
+
+# --------------------------------------------------------------------------------------------
+# Site identity (#21 item 5): the commands check which site they talk to
+# --------------------------------------------------------------------------------------------
+
+
+def test_a_config_of_another_site_is_refused_in_one_line(stack: Stack) -> None:
+    two = SiteIdentity.of(load_site(ROOT / TWO_TANK))
+    ran = proc("status", "--config", TWO_TANK, "--base-port", str(stack.base))
+    assert ran.code == 2
+    # status asks the tiers at once: the first to answer is named.
+    tier = re.match(r"tankctl: site mismatch: (plant|plc|supervisor) at ", one_line(ran.stderr))
+    assert tier is not None, ran.stderr
+    assert one_line(ran.stderr) == (
+        f"tankctl: site mismatch: {tier[1]} at {stack.url(tier[1])} runs three_tank_energies_sim (config "
+        f"{ENERGIES.short}); --config {TWO_TANK} is two_tank_interacting (config {two.short}); give the "
+        "stack's config, or no --config to take the site from the stack"
+    )
+    assert ran.stdout == ""  # no two-tank status with wrong percentages
+    (before,) = read(stack.url("plc"), "PLC.LIC1.SP")
+    ran = cli("setpoint", "LIC1", "0.3", "--config", TWO_TANK, "--base-port", str(stack.base))
+    assert ran.code == 2 and "site mismatch" in one_line(ran.stderr)
+    assert read(stack.url("plc"), "PLC.LIC1.SP") == [before]  # nothing written
+    # The same site with one parameter changed is another config: refused as well.
+    edited = load_site(CONFIG).model_dump(mode="json")
+    edited["plc"]["loops"][0]["setpoint_m"] = 0.3
+    changed = ROOT / "var" / f"edited-{stack.base}.json"
+    changed.parent.mkdir(exist_ok=True)
+    try:
+        changed.write_text(json.dumps(edited))
+        ran = cli("leak", "T1", "0", "--config", str(changed), "--base-port", str(stack.base))
+        assert ran.code == 2
+        assert f"runs three_tank_energies_sim (config {ENERGIES.short}); --config" in one_line(ran.stderr)
+    finally:
+        changed.unlink()
+
+
+def test_without_a_config_the_site_is_the_stacks(stack: Stack) -> None:
+    # No --config and no TANKLAB_CONFIG: the site is the one the stack publishes.
+    env = {"TANKLAB_CONFIG": ""}
+    ran = cli("status", "--json", "--base-port", str(stack.base), env=env)
+    assert ran.code == 0, ran.stderr
+    doc = json.loads(ran.stdout)
+    assert (doc["site"], doc["config_digest"]) == (ENERGIES.name, ENERGIES.digest)
+    assert set(doc["plant"]["tanks"]) == {"T1", "T2", "T3"}
+    human = cli("status", "--base-port", str(stack.base), env=env)
+    assert human.stdout.splitlines()[0] == (
+        f"three_tank_energies_sim  config {ENERGIES.short} (from plc at {stack.url('plc')})"
+    )
+    ran = cli("valve", "V32", "0.9", "--base-port", str(stack.base), env=env)
+    assert ran.code == 0, ran.stderr
+    assert one_line(ran.stdout) == "Plant.V32.Opening = 0.9 (was 1)"
+    assert cli("valve", "V32", "open", "--base-port", str(stack.base), env=env).code == 0
+    ran = cli("setpoint", "LIC9", "0.4", "--base-port", str(stack.base), env=env)  # names from the stack
+    assert ran.code == 2
+    assert one_line(ran.stderr) == (
+        "tankctl: unknown loop 'LIC9' (the site three_tank_energies_sim has LIC1, LIC2)"
+    )
+
+
+def test_a_scenario_for_another_site_is_refused_naming_why(stack: Stack) -> None:
+    kortela = SiteIdentity.of(load_site(ROOT / "configs/three_tank_kortela.yaml"))
+    ran = proc("scenario", "run", "configs/scenarios/kortela_mpc_vs_pi.yaml", "--base-port", str(stack.base))
+    assert ran.code == 2
+    assert one_line(ran.stderr) == (
+        f"tankctl: scenario kortela_mpc_vs_pi is written for three_tank_kortela (config {kortela.short}) "
+        f"(site: ../three_tank_kortela.yaml), but the stack runs three_tank_energies_sim (config "
+        f"{ENERGIES.short}) (plant at {stack.url('plant')})"
+    )
+    assert ran.stdout == ""
+
+
+def test_a_scenario_with_fields_a_live_stack_cannot_take(stack: Stack, tmp_path: Path) -> None:
+    scenario = tmp_path / "with_variant.yaml"
+    scenario.write_text(
+        f"name: with_variant\nsite: {CONFIG}\nduration_s: 5\n"
+        "initial: {levels_m: [0.1, 0.1, 0.1]}\n"
+        "events: [{at_s: 0, kind: leak, tank: T2, opening: 0.05}]\n"
+        "variants: [{name: tuned, set: {plc.loops.0.gains.kp: 0.002}}]\n"
+    )
+    fields = [
+        "initial.levels_m (a running plant's levels are not writable)",
+        "variants[tuned].set plc.loops.0.gains.kp (a running stack's site is fixed at its start)",
+    ]
+    ran = cli("scenario", "run", str(scenario), "--base-port", str(stack.base))
+    assert ran.code == 2
+    assert one_line(ran.stderr) == (
+        "tankctl: scenario with_variant: 2 fields cannot be applied to a running stack: "
+        f"{'; '.join(fields)}; --ignore-unappliable runs its events without them"
+    )
+    assert ran.stdout == ""
+    assert read(stack.url("plant"), "Plant.T2.Leak") == [0.0]  # refused before any write
+    ran = cli("scenario", "run", str(scenario), "--ignore-unappliable", "--base-port", str(stack.base))
+    assert ran.code == 0, ran.stderr
+    lines = ran.stdout.strip().splitlines()
+    assert [line for line in lines if line.startswith("not applied: ")] == [
+        f"not applied: {f}" for f in fields
+    ]
+    assert "@0 s leak T2 0.05: Plant.T2.Leak = 0.05 (was 0)" in ran.stdout
+    assert lines[-1] == "done: 1 of 1 events applied"
+    assert cli("leak", "T2", "off", *base(stack)).code == 0
