@@ -6,6 +6,8 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 CONFIG ?= configs/three_tank_energies_sim.yaml
 PYTEST_ARGS ?=
+# Test workers (pytest-xdist, one per core; decision 0025). Each test file runs on one worker.
+TEST_WORKERS ?= 2
 
 .PHONY: venv tools node-tools run test lint typecheck unit bench docs clean
 
@@ -58,7 +60,7 @@ node-tools:
 	fi
 
 test: tools lint typecheck
-	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 # Installs the `bench` extra (cvxpy, do-mpc, CasADi) on first use; writes docs/benchmarks.md.
 bench: venv

@@ -344,7 +344,7 @@ async def test_plc_warm_restart_after_the_pumps_were_stopped_resumes_from_the_la
             got = await read_nodes(s.plc_url, ["PLC.Status.IoHealthy", "PLC.IO.LT1.PV"])
             return bool(got["PLC.Status.IoHealthy"]) and abs(got["PLC.IO.LT1.PV"] - 0.4) < 0.003
 
-        await wait_until(regulating, 60, what="the PLC regulating at the operating point")
+        await wait_until(regulating, 120, what="the PLC regulating at the operating point")
         await s.run_for(20.0)
         assert s.plc is not None
         await s.plc.kill()

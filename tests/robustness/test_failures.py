@@ -422,7 +422,7 @@ async def test_plc_frozen_then_crashed_the_supervisor_never_stalls_silently(full
         finally:
             os.kill(stack.pid("plc"), signal.SIGCONT)
         await stack.plc.close()
-        await wait_until(functools.partial(recovered_past, cycle), 60, what=f"recovery after SIGCONT {rep}")
+        await wait_until(functools.partial(recovered_past, cycle), 120, what=f"recovery after SIGCONT {rep}")
         # Crash, and a restart on the same port with the same retentive memory.
         await stack.procs["plc"].kill()
         await stack.plc.close()
