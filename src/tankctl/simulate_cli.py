@@ -50,6 +50,19 @@ def _run(file: Path, config: Path | None, variant: list[str] | None) -> Scenario
         raise _fail(str(e)) from None
 
 
+PLOTS_MISSING = "--plot needs matplotlib, which this install does not have: pip install 'tanklab[plots]'"
+"""The one line ``simulate --plot`` prints (exit 2) when matplotlib is not installed."""
+
+
+def _plots_available() -> bool:
+    """Whether matplotlib imports: it is the ``plots`` extra, not a runtime dependency."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def simulate_command(
     scenario: ScenarioArg,
     config: ConfigOpt = None,
@@ -62,6 +75,8 @@ def simulate_command(
     variant: VariantOpt = None,
 ) -> None:
     """Run a scenario in the co-simulation, once per variant; print metrics per loop and step."""
+    if plot is not None and not _plots_available():  # before the run (and its imports)
+        raise _fail(PLOTS_MISSING)
     from tankctl.simulate import result_json, summary_text, write_csv
 
     result = _run(scenario, config, variant)

@@ -13,11 +13,13 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from helpers import ROOT, TierProcess, free_base_port, secure
+from tankctl.simulate_cli import PLOTS_MISSING
 from tanklab.ua import resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
@@ -112,6 +114,31 @@ def test_every_command_is_still_listed() -> None:
         assert f" {name} " in r.stdout, name
     r = CliRunner().invoke(app, ["tune", "zn", "--gain", "2", "--dead-time", "1", "--tau", "5", "--json"])
     assert r.exit_code == 0 and json.loads(r.stdout)["Kc"] == pytest.approx(0.9 * 5 / (2 * 1))  # ZN PI
+
+
+def test_plot_without_matplotlib_is_one_line_before_the_run(tmp_path: Path) -> None:
+    """matplotlib is the ``plots`` extra: without it ``simulate --plot`` says so in one line,
+    exit 2, before simulating anything; without --plot the same scenario runs. The interpreter is
+    made to lack matplotlib the way Python marks a module absent (``sys.modules[name] = None``:
+    every import of it raises ImportError), so the real command runs, nothing stands in for it."""
+    scenario = str(ROOT / "configs/scenarios/nlpi_short_sim.yaml")
+    png = tmp_path / "out.png"
+    block = "import sys; sys.modules['matplotlib'] = None\n"
+    argv = ["simulate", scenario, "--plot", str(png)]
+    p = subprocess.run(
+        [sys.executable, "-c", block + _RUN_AND_LIST, *argv],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        check=False,
+    )
+    message = p.stderr.strip().splitlines()[:-1]  # the last line is the module list
+    assert p.returncode == 2 and message == [f"tankctl: {PLOTS_MISSING}"], p.stderr
+    assert not png.exists() and p.stdout == ""
+    assert "tankctl.cosim" not in json.loads(p.stderr.strip().splitlines()[-1])  # refused before the run
+    p, _ = _run("simulate", scenario, "--plot", str(png))  # matplotlib present: drawn
+    assert p.returncode == 0 and png.stat().st_size > 0, p.stderr
 
 
 @pytest.mark.process
