@@ -1,25 +1,40 @@
-# tanklab developer entry points. `make run` and `make test` work on a fresh clone:
-# they create .venv and install the project (with its dev extras) on first use.
+# tanklab developer entry points. `make run` and `make test` work on a fresh clone: they create
+# .venv on first use. `make run` installs the runtime dependencies only (`pip install -e .`);
+# `make test`, `make lint`, `make typecheck` and `make venv` add the dev extras (`.[dev]`), and
+# `make bench` the bench extras. Each install has its own stamp, so moving from `make run` to
+# `make test` on the same .venv installs the dev extras (docs/decisions/0023-lazy-cli-imports.md).
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed-stamp
+RUN_STAMP := $(VENV)/.stamp-runtime
+DEV_STAMP := $(VENV)/.stamp-dev
 CONFIG ?= configs/three_tank_energies_sim.yaml
 PYTEST_ARGS ?=
 # Test workers (pytest-xdist, one per core; decision 0025). Each test file runs on one worker.
 TEST_WORKERS ?= 2
 
-.PHONY: venv tools node-tools run test lint typecheck unit bench docs clean
+.PHONY: venv runtime tools node-tools run test lint typecheck unit bench docs clean
 
-venv: $(STAMP)
-
-$(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+# The interpreter and an up-to-date pip, shared by both installs.
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
-	touch $(STAMP)
 
-run: venv
+# Runtime dependencies only: what the stack and the operator commands need.
+runtime: $(RUN_STAMP)
+
+$(RUN_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $(RUN_STAMP)
+
+# The dev extras (tests, linters, type checker, plots): a superset of the runtime install.
+venv: $(DEV_STAMP)
+
+$(DEV_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(RUN_STAMP) $(DEV_STAMP)
+
+run: runtime
 	$(BIN)/tankctl up --config $(CONFIG)
 
 lint: venv
@@ -68,7 +83,7 @@ bench: venv
 	  $(BIN)/python -m pip install --quiet -e '.[dev,bench]'
 	$(BIN)/python -m benchmarks.run
 
-docs: venv
+docs: runtime
 	$(BIN)/tankctl docs address-space > docs/address-space.md
 	$(BIN)/tankctl config schema > docs/config-schema.json
 

@@ -53,7 +53,9 @@ class Report:
     """:func:`benchmarks.common.speed_reference` at the start and at the end of the run [ms]."""
     errors: list[str] = field(default_factory=list)
     extra: list[str] = field(default_factory=list)
-    """Whole markdown sections of other benchmark modules (robustness, security), in order."""
+    """Whole markdown sections of other benchmark modules (robustness, security, cli), in order."""
+    extra_goals: list[Goal] = field(default_factory=list)
+    """Goals measured by those modules (cli: operator command wall time), after the others."""
 
 
 def _load(cores: float) -> str:
@@ -248,6 +250,7 @@ def goals(rep: Report) -> list[Goal]:
             )
         elif rep.stack.lockstep:
             out.append(Goal("lock-step, 1000 s", "< 5 s wall", "n/a", None, rep.stack.lockstep[0].error))
+    out += rep.extra_goals
     return out
 
 

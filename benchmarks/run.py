@@ -5,10 +5,12 @@ Usage::
     python -m benchmarks.run              # full run (about 10 minutes on 2 cores)
     python -m benchmarks.run --quick      # fast pass, writes var/benchmarks-quick.md
     python -m benchmarks.run --only mpc,cosim --output /tmp/b.md
+    python -m benchmarks.run --only cli --output /tmp/cli.md   # operator commands only (~2 min)
 
 Sections: ``mpc`` (MPC step time against cvxpy and do-mpc), ``cosim`` (co-simulation speed and
 hot spots), ``stack`` (OPC UA round trip, setpoint-to-action, PLC scan lateness, lock-step speed
-through real processes). Progress goes to stderr; the document is written at the end.
+through real processes), ``robustness``, ``security``, ``cli`` (operator command wall time
+and the CLI's import cost). Progress goes to stderr; the document is written at the end.
 """
 
 from __future__ import annotations
@@ -24,11 +26,11 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from benchmarks import accuracy, cosim, mpc, report, robustness, security, stack
+from benchmarks import accuracy, cli, cosim, mpc, report, robustness, security, stack
 from benchmarks.common import ROOT, machine, speed_reference, versions
 from tanklab.threads import limit_blas_threads
 
-SECTIONS = ("mpc", "cosim", "stack", "robustness", "security")
+SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli")
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,7 @@ class Plan:
     lateness_x20_s: float
     lockstep_runs: int
     realtime_x20_s: float
+    cli_repeats: int
 
 
 FULL = Plan(
@@ -60,6 +63,7 @@ FULL = Plan(
     lateness_x20_s=30.0,
     lockstep_runs=5,
     realtime_x20_s=30.0,
+    cli_repeats=30,
 )
 QUICK = Plan(
     horizons=(10, 40, 160),
@@ -73,6 +77,7 @@ QUICK = Plan(
     lateness_x20_s=10.0,
     lockstep_runs=1,
     realtime_x20_s=10.0,
+    cli_repeats=8,
 )
 
 
@@ -126,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             "setpoint trials": f"{plan.actions_x1} at speed 1, {plan.actions_x20} at speed 20",
             "lateness windows": f"{plan.lateness_x1_s:g} s at speed 1, {plan.lateness_x20_s:g} s at speed 20",
             "lock-step runs": str(plan.lockstep_runs),
+            "operator command runs": str(plan.cli_repeats),
         },
     )
     comparators = [mpc.CVXPY_OSQP, mpc.CVXPY_OSQP_TIGHT, mpc.CVXPY_DEFAULT, mpc.DOMPC]
@@ -184,11 +190,19 @@ def main(argv: list[str] | None = None) -> int:
         _log("security robustness (fuzz, flood, freeze and crash, idle sockets):")
         rep.extra.append(security.markdown(security.run_all(full=not args.quick)))
 
+    def run_cli() -> None:
+        _log("operator commands and the CLI's import cost:")
+        result = cli.run(ROOT / "var" / "bench", plan.cli_repeats, _log)
+        rep.extra.append(cli.markdown(result))
+        rep.extra_goals += cli.goals(result)
+        rep.errors += [f"cli: {e}" for e in result.errors]
+
     section("mpc", run_mpc)
     section("cosim", run_cosim)
     section("stack", run_stack)
     section("robustness", run_robustness)
     section("security", run_security)
+    section("cli", run_cli)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import os
 import signal
 import socket
@@ -17,17 +18,15 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 
 from tankctl import ops
 from tankctl.security_cli import register as register_security
-from tankctl.simulate import register as register_simulate
+from tankctl.simulate_cli import register as register_simulate
 from tankctl.tune_cli import app as tune_app
 from tanklab.config import SiteConfig, load_site, site_schema
 from tanklab.errors import TanklabError
 from tanklab.tags import render_markdown
-from tanklab.threads import limit_blas_threads
 
 if TYPE_CHECKING:
     from tanklab.ua_security import ServerSecurity
@@ -105,7 +104,7 @@ def resolve_speed(speed: float | None) -> float:
             speed = float(env) if env else 1.0
         except ValueError:
             raise fail(f"TANKLAB_SPEED must be a number, got {env!r}") from None
-    if not (speed > 0 and np.isfinite(speed)):
+    if not (speed > 0 and math.isfinite(speed)):
         raise fail(f"--speed must be a positive number, got {speed}")
     return speed
 
@@ -189,9 +188,14 @@ def linearize(
     ] = False,
 ) -> None:
     """Linearize the plant at its operating point: A, B, C, D w.r.t. the pump flows [m^3/s]."""
+    import numpy as np
+
     from plant_sim.linearize import linearize as lin
     from plant_sim.linearize import operating_point
     from plant_sim.models import TankNetwork, default_inputs
+    from tanklab.threads import limit_blas_threads
+
+    limit_blas_threads()
 
     if ts is not None and not (ts > 0 and np.isfinite(ts)):
         raise fail(f"--ts must be a positive number of seconds, got {ts}")
@@ -263,6 +267,9 @@ def _url(flag: str | None, env: str, default: str) -> str:
 
 def serve(tier: str, banner: str, runner: Any) -> None:
     """Run a tier's ``runner(stop, ready)`` until SIGINT/SIGTERM; print ``banner`` when it serves."""
+    from tanklab.threads import limit_blas_threads
+
+    limit_blas_threads()  # a tier computes every scan: one BLAS thread (tanklab.threads)
     setup_logging()
 
     async def main(stop: asyncio.Event) -> None:
@@ -520,8 +527,12 @@ def up(
 
 
 def main() -> None:
-    """Console-script entry point."""
-    limit_blas_threads()
+    """Console-script entry point.
+
+    Operator commands import only what they use (docs/decisions/0023-lazy-cli-imports.md): the
+    commands that compute (the tiers, ``linearize``, ``simulate``, ``compare``) import numpy and
+    scipy and limit BLAS to one thread themselves (``tanklab.threads``).
+    """
     try:
         app()
     except KeyboardInterrupt:

@@ -45,16 +45,14 @@ with ``/``), else ``<OUT stem>_<variant>.csv`` (a ``.csv`` suffix on OUT is drop
 from __future__ import annotations
 
 import csv
-import json
 import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import numpy as np
-import typer
 from numpy.typing import NDArray
 
 from plant_sim.models import PlantInputs
@@ -72,9 +70,11 @@ from tankctl.metrics import (
     max_du,
     step_metrics,
 )
+
+# The commands live in tankctl.simulate_cli (light: no co-simulation import); re-exported.
+from tankctl.simulate_cli import compare_command, register, simulate_command
 from tanklab.config import ConfigError, SiteConfig, site_from_mapping
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
-from tanklab.errors import TanklabError
 from tanklab.scenario import (
     DisturbanceEvent,
     Event,
@@ -1060,87 +1060,6 @@ def regenerate_docs(doc: str | Path, *, root: str | Path = ".") -> list[str]:
 
     doc_path.write_text(_BLOCK.sub(render, text), encoding="utf-8")
     return done
-
-
-# --------------------------------------------------------------------------------------------
-# Commands
-# --------------------------------------------------------------------------------------------
-
-
-def _fail(message: str, code: int = 2) -> typer.Exit:
-    typer.echo(f"tankctl: {message}", err=True)
-    return typer.Exit(code)
-
-
-ScenarioArg = Annotated[Path, typer.Argument(help="Scenario YAML file (configs/scenarios/).")]
-ConfigOpt = Annotated[
-    Path | None, typer.Option("--config", "-c", help="Site YAML file instead of the scenario's own.")
-]
-VariantOpt = Annotated[
-    list[str] | None, typer.Option("--variant", "-v", help="Run only this variant (repeatable).")
-]
-
-
-def _run(file: Path, config: Path | None, variant: list[str] | None) -> ScenarioResult:
-    try:
-        return run_scenario(file, config=config, variants=variant)
-    except TanklabError as e:
-        raise _fail(str(e)) from None
-
-
-def simulate_command(
-    scenario: ScenarioArg,
-    config: ConfigOpt = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON on stdout.")] = False,
-    csv_out: Annotated[
-        str | None,
-        typer.Option("--csv", help="Trajectories: OUT/<variant>.csv (directory) or OUT_<variant>.csv."),
-    ] = None,
-    plot: Annotated[Path | None, typer.Option("--plot", help="One PNG with every variant.")] = None,
-    variant: VariantOpt = None,
-) -> None:
-    """Run a scenario in the co-simulation, once per variant; print metrics per loop and step."""
-    result = _run(scenario, config, variant)
-    written: list[Path] = []
-    try:
-        if csv_out is not None:
-            written += write_csv(result, csv_out)
-        if plot is not None:
-            from tankctl.plots import plot_scenario
-
-            plot_scenario(result, plot)
-            written.append(plot)
-    except OSError as e:
-        raise _fail(f"cannot write output: {e.strerror or e}: {e.filename or ''}") from None
-    if as_json:
-        typer.echo(json.dumps(result_json(result), indent=2, allow_nan=False))
-    else:
-        typer.echo(summary_text(result))
-        for path in written:
-            typer.echo(f"wrote {path}")
-
-
-def compare_command(
-    scenario: ScenarioArg,
-    config: ConfigOpt = None,
-    variant: VariantOpt = None,
-    markdown: Annotated[bool, typer.Option("--markdown", help="Print markdown tables instead.")] = False,
-) -> None:
-    """Run a scenario and print our metrics beside the paper's published ones."""
-    result = _run(scenario, config, variant)
-    if markdown:
-        text = markdown_report(result)
-        if result.scenario.name in TF_REFERENCES:
-            text += "\nThe paper's experiment on its own transfer function:\n\n" + tf_markdown()
-        typer.echo(text, nl=False)
-    else:
-        typer.echo(compare_text(result))
-
-
-def register(app: typer.Typer) -> None:
-    """Add ``simulate`` and ``compare`` to the main ``tankctl`` app."""
-    app.command("simulate")(simulate_command)
-    app.command("compare")(compare_command)
 
 
 if __name__ == "__main__":  # python -m tankctl.simulate [docs/reproduction.md]: refresh the doc

@@ -11,6 +11,9 @@ Commands (mounted by ``tankctl.cli`` as ``tankctl tune``)::
 (``--den 29.6 14.7 1``; click options take a fixed number of values, so the extra values are
 collected from the command's remaining arguments) or as one quoted string (``--den "29.6 14.7 1"``).
 Bad input prints one line on stderr and exits with code 2; nothing prints a traceback.
+Each command imports ``plc_emulator.tuning`` (and through ``tanklab.checks``, numpy) when it
+runs, so that mounting ``tune`` costs the other ``tankctl`` commands nothing
+(docs/decisions/0023-lazy-cli-imports.md).
 """
 
 from __future__ import annotations
@@ -24,14 +27,6 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from plc_emulator.tuning import (
-    imc_from_denominator,
-    imc_from_taus,
-    nlpi_gains,
-    spec_to_zeta_wn,
-    velocity_gains,
-    ziegler_nichols_open_loop,
-)
 from tankctl.usage import OneLineUsage
 
 __all__ = ["app"]
@@ -108,6 +103,8 @@ def imc(
 
     Kc = (tau1 + tau2) / (K lam), Ti = tau1 + tau2, Td = tau1 tau2 / Ti (PI: Td = 0).
     """
+    from plc_emulator.tuning import imc_from_denominator, imc_from_taus
+
     try:
         by_tf = num is not None or den is not None
         by_taus = gain is not None or tau1 is not None or tau2 is not None
@@ -156,6 +153,8 @@ def nlpi(
     as_json: JsonOpt = False,
 ) -> None:
     """Feedback-linearized PI gains: Kp = 2 zeta wn / b, Ki = wn^2 / b, Kl = a' / b."""
+    from plc_emulator.tuning import nlpi_gains, spec_to_zeta_wn
+
     try:
         by_zw = zeta is not None or wn is not None
         by_spec = overshoot is not None or settling is not None
@@ -194,6 +193,8 @@ def zn(
     as_json: JsonOpt = False,
 ) -> None:
     """Ziegler-Nichols open-loop (reaction curve) tuning from a FOPDT model."""
+    from plc_emulator.tuning import velocity_gains, ziegler_nichols_open_loop
+
     try:
         p = ziegler_nichols_open_loop(gain, dead_time, tau, kind)
         vel = velocity_gains(p.Kc, p.Ti, p.Td)
