@@ -1573,10 +1573,11 @@ def render_status(stack: Stack, doc: dict[str, Any]) -> Group:
     site = stack.site
     shown = [t for t in TIERS if doc[t] is not None]
     url_width = max(len(doc[t]["url"]) for t in shown)
-    lines = [
-        Text(f"{site.name}", style="bold")
-        + Text(f"  config {stack.site_identity.short} (from {stack.origin})")
-    ]
+    title = Text(f"{site.name}", style="bold") + Text(
+        f"  config {stack.site_identity.short} (from {stack.origin})"
+    )
+    title.no_wrap, title.overflow = True, "ignore"  # one line, however narrow the terminal
+    lines = [title]
     for tier in shown:
         d = doc[tier]
         state = Text(_tier_state(tier, d), style="" if d["reachable"] else "bold red")
