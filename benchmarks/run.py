@@ -8,7 +8,10 @@ Usage::
 
 Sections: ``mpc`` (MPC step time against cvxpy and do-mpc), ``cosim`` (co-simulation speed and
 hot spots), ``stack`` (OPC UA round trip, setpoint-to-action, PLC scan lateness, lock-step speed
-through real processes). Progress goes to stderr; the document is written at the end.
+through real processes), ``robustness``, ``security``, ``restarts`` (each tier SIGKILLed 20 times
+under ``tankctl up`` at speed 1: settings lost, level deviation, restart time, processes left).
+Progress goes to stderr; the document is written at the end. ``--only`` writes a document with
+those sections alone: give it an ``--output`` to keep docs/benchmarks.md whole.
 """
 
 from __future__ import annotations
@@ -24,11 +27,11 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from benchmarks import accuracy, cosim, mpc, report, robustness, security, stack
+from benchmarks import accuracy, cosim, mpc, report, restarts, robustness, security, stack
 from benchmarks.common import ROOT, machine, speed_reference, versions
 from tanklab.threads import limit_blas_threads
 
-SECTIONS = ("mpc", "cosim", "stack", "robustness", "security")
+SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "restarts")
 
 
 @dataclass(frozen=True)
@@ -188,7 +191,15 @@ def main(argv: list[str] | None = None) -> int:
     section("cosim", run_cosim)
     section("stack", run_stack)
     section("robustness", run_robustness)
+    def run_restarts() -> None:
+        _log("restarts (each tier SIGKILLed under tankctl up at speed 1):")
+        n = 5 if args.quick else restarts.RESTARTS
+        result = asyncio.run(restarts.run(ROOT / "var" / "bench-restarts", _log, n))
+        rep.extra.append(restarts.markdown(result))
+        rep.errors += [f"restarts: {e}" for e in result.errors]
+
     section("security", run_security)
+    section("restarts", run_restarts)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started
