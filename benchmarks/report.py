@@ -54,6 +54,8 @@ class Report:
     errors: list[str] = field(default_factory=list)
     extra: list[str] = field(default_factory=list)
     """Whole markdown sections of other benchmark modules (robustness, security), in order."""
+    more_goals: list[Goal] = field(default_factory=list)
+    """Goals judged by other benchmark modules (restarts), listed after this module's."""
 
 
 def _load(cores: float) -> str:
@@ -248,7 +250,7 @@ def goals(rep: Report) -> list[Goal]:
             )
         elif rep.stack.lockstep:
             out.append(Goal("lock-step, 1000 s", "< 5 s wall", "n/a", None, rep.stack.lockstep[0].error))
-    return out
+    return out + rep.more_goals
 
 
 def _advisory_ms_per_scan(rep: Report) -> str:

@@ -46,7 +46,7 @@ from typing import Any
 import yaml
 from asyncua import ua
 
-from benchmarks.common import cli_setup, fmt
+from benchmarks.common import Goal, cli_setup, fmt
 from benchmarks.procs import Proc, alive, free_base_port, tankctl_pids
 from benchmarks.security import site_config
 from tanklab.enums import GainSource, SensorFault, SupervisorMode
@@ -535,6 +535,50 @@ def describe(r: Restart) -> str:
         line += f", theta change {fmt(r.theta_change or 0.0)}, pushes {r.pushes}, refused {r.refusals}"
         line += ", pumps stopped by the watchdog" if r.pumps_stopped else ""
     return line + f"; processes {r.processes}"
+
+
+def goals(result: RestartsResult) -> list[Goal]:
+    """Issue 21's three targets for the restarts."""
+    n = {t: sum(r.tier == t for r in result.restarts) for t in TIERS}
+    done = ", ".join(f"{t} {k}" for t, k in n.items())
+    lost = [r for r in result.restarts if r.lost]
+    devs = [r.deviation_m for r in result.restarts if r.deviation_m is not None]
+    complete = not result.errors and all(k == result.restarts_per_tier for k in n.values())
+    worst = max(devs) if devs else float("nan")
+    over = sum(d > DEVIATION_TARGET_M for d in devs)
+    stopped = sum(
+        r.pumps_stopped
+        for r in result.restarts
+        if r.deviation_m is not None and r.deviation_m > DEVIATION_TARGET_M
+    )
+    tiers_lost = sorted({r.tier for r in lost})
+    return [
+        Goal(
+            f"settings lost over {result.restarts_per_tier} SIGKILL restarts per tier (speed 1)",
+            "0",
+            f"{sum(len(r.lost) for r in result.restarts)} (restarts: {done})",
+            (not lost) if complete else None,
+            f"lost on {', '.join(tiers_lost)} restarts (section 9)" if lost else "",
+        ),
+        Goal(
+            "largest level deviation during a PLC restart",
+            "<= 5 mm",
+            f"{fmt(1e3 * worst)} mm ({over} of {len(devs)} over)",
+            (worst <= DEVIATION_TARGET_M) if devs else None,
+            f"{stopped} of the {over} over had the plant's watchdog stop the pumps (section 9)"
+            if over
+            else "",
+        ),
+        Goal(
+            "tankctl processes left after the stop; one per tier after every restart",
+            "0; 1",
+            f"{len(result.left_after_stop)}; "
+            + (
+                "1 each" if all(set(r.processes.values()) == {1} for r in result.restarts) else "not always 1"
+            ),
+            not result.left_after_stop and all(set(r.processes.values()) == {1} for r in result.restarts),
+        ),
+    ]
 
 
 def _summary(values: Sequence[float]) -> str:

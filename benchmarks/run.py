@@ -191,11 +191,13 @@ def main(argv: list[str] | None = None) -> int:
     section("cosim", run_cosim)
     section("stack", run_stack)
     section("robustness", run_robustness)
+
     def run_restarts() -> None:
         _log("restarts (each tier SIGKILLed under tankctl up at speed 1):")
         n = 5 if args.quick else restarts.RESTARTS
         result = asyncio.run(restarts.run(ROOT / "var" / "bench-restarts", _log, n))
         rep.extra.append(restarts.markdown(result))
+        rep.more_goals += restarts.goals(result)
         rep.errors += [f"restarts: {e}" for e in result.errors]
 
     section("security", run_security)
