@@ -34,12 +34,14 @@ import asyncio
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import signal
 import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -140,6 +142,12 @@ class Restart:
     """Gain sets the supervisor had accepted on LIC2 during the window."""
     refusals: int = 0
     """Candidate gain sets rejected (by a guard or the PLC) on LIC2 during the window."""
+    killed_at: float = float("nan")
+    """Wall-clock time of the SIGKILL (``time.time()``, to find the restart in the tier's log)."""
+    phases_s: tuple[float, float, float] | None = None
+    """PLC restarts, from its log: SIGKILL -> "warm restart from" (up's poll, the interpreter's
+    start, imports, config), -> "PLC server listening" (its OPC UA server), -> "resumed from the
+    plant's commands" (field link, the read before the first scan) [s]."""
 
 
 @dataclass
@@ -412,6 +420,7 @@ class Bench:
             raise RuntimeError(f"no live {tier} pid in {self.run_dir}")
         self.tier_up = None
         t_kill = time.monotonic()
+        killed_at = time.time()
         os.kill(old, signal.SIGKILL)
         worst = [0.0, 0.0]
         from_sp = 0.0
@@ -457,7 +466,7 @@ class Bench:
                 owned.append(line)
             else:
                 lost.append(line)
-        r = Restart(tier, index, seconds, tier_s, lost, owned, processes)
+        r = Restart(tier, index, seconds, tier_s, lost, owned, processes, killed_at=killed_at)
         if tier == "plc":
             r.deviation_m = max(worst)
             r.deviation_by_tank_m = (worst[0], worst[1])
@@ -519,10 +528,42 @@ async def run(work: Path, log: Callable[[str], None], restarts: int = RESTARTS) 
                 os.kill(pid, signal.SIGKILL)
         result.pid_files_left = sorted(p.name for p in bench.run_dir.glob("*.pid"))
         result.up_lines = bench.up.log_text().splitlines()[-12:]
+        with contextlib.suppress(OSError):
+            plc_phases(result, (bench.run_dir / "plc.log").read_text(encoding="utf-8", errors="replace"))
         result.wall_s = time.monotonic() - started
         result.load = (load0, os.getloadavg()[0])
         (work / "result.json").write_text(json.dumps(dataclasses.asdict(result), indent=1), encoding="utf-8")
     return result
+
+
+PHASE_MARKS = ("warm restart from", "PLC server listening", "warm restart: resumed from")
+
+
+def _stamp(line: str) -> float | None:
+    """The wall time of a tier's log line (``%(asctime)s``: local time, milliseconds) [s epoch]."""
+    try:
+        return datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f").timestamp()
+    except ValueError:
+        return None
+
+
+def plc_phases(result: RestartsResult, log_text: str) -> None:
+    """Fill each PLC restart's ``phases_s`` from the PLC's log: the first line of each phase
+    after its SIGKILL."""
+    marks = [(t, line) for line in log_text.splitlines() if (t := _stamp(line)) is not None]
+    for r in result.restarts:
+        if r.tier != "plc" or not math.isfinite(r.killed_at):
+            continue
+        at: list[float] = []
+        t0 = r.killed_at
+        for mark in PHASE_MARKS:
+            t = next((t for t, line in marks if t >= t0 and mark in line), None)
+            if t is None:
+                break
+            at.append(t)
+            t0 = t
+        if len(at) == 3:
+            r.phases_s = (at[0] - r.killed_at, at[1] - at[0], at[2] - at[1])
 
 
 def describe(r: Restart) -> str:
@@ -644,6 +685,18 @@ def markdown(result: RestartsResult) -> str:
         f"{', '.join(result.pid_files_left) or 'none'}.",
         "",
     ]
+    phases = [r.phases_s for r in plc if r.phases_s is not None]
+    if phases:
+        start, serve, link = ([p[i] for p in phases] for i in range(3))
+        gap = [sum(p) for p in phases]
+        lines += [
+            "Where a PLC restart's gap goes (its log; median / max, s): from the SIGKILL to "
+            f"\"warm restart from\" (`up`'s 1 s poll, the interpreter's start, imports, config) "
+            f'{_summary(start)}; its OPC UA server until "listening" {_summary(serve)}; the field link '
+            f"and the read of the plant before the first scan {_summary(link)}; total {_summary(gap)} "
+            f"({sum(g > 10.0 for g in gap)} of {len(gap)} longer than the plant's 10 s command timeout).",
+            "",
+        ]
     thetas = [r.theta_change for r in plc if r.theta_change is not None]
     if thetas:
         lines += [
@@ -664,6 +717,17 @@ def markdown(result: RestartsResult) -> str:
     )
     lines.append("")
     return "\n".join(lines)
+
+
+def load_result(path: Path) -> RestartsResult:
+    """A run's ``result.json`` back as a :class:`RestartsResult` (to render it again)."""
+    data = json.loads(path.read_text(encoding="utf-8"))
+    restarts = [Restart(**r) for r in data.pop("restarts")]
+    for r in restarts:
+        r.deviation_by_tank_m = tuple(r.deviation_by_tank_m) if r.deviation_by_tank_m else None  # type: ignore[assignment]
+        r.phases_s = tuple(r.phases_s) if r.phases_s else None  # type: ignore[assignment]
+    data["load"] = tuple(data["load"])
+    return RestartsResult(restarts=restarts, **data)
 
 
 if __name__ == "__main__":
