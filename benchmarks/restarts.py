@@ -166,6 +166,9 @@ class RestartsResult:
     wall_s: float = 0.0
     base: int = 0
     restarts_per_tier: int = RESTARTS
+    tiers: list[str] = field(default_factory=lambda: list(TIERS))
+    safe_state: str | None = None
+    """Every pump's watchdog safe state in this run (None: the shipped config's, ``off``)."""
     load: tuple[float, float] = (float("nan"), float("nan"))
     """The machine's 1-minute load average at the start and at the end (2 cores here)."""
 
@@ -241,7 +244,9 @@ def box_change(a: Sequence[float] | None, b: Sequence[float] | None, widths: Seq
 class Bench:
     """The stack under test, its readers and the measurements."""
 
-    def __init__(self, work: Path, restarts: int, log: Callable[[str], None]) -> None:
+    def __init__(
+        self, work: Path, restarts: int, log: Callable[[str], None], safe_state: str | None = None
+    ) -> None:
         self.log = log
         self.n = restarts
         self.work = work
@@ -250,6 +255,9 @@ class Bench:
         self.config = site_config(work / "site.yaml", at_operating_point=True)
         data = yaml.safe_load(self.config.read_text(encoding="utf-8"))
         data["stack"] = {"restart": True, "max_restarts": restarts}
+        if safe_state is not None:
+            for pump in data["plant"]["pumps"]:
+                pump["watchdog_safe_state"] = safe_state
         self.config.write_text(yaml.safe_dump(data), encoding="utf-8")
         self.run_dir = work / "var" / str(data["name"])
         from benchmarks.common import load
@@ -499,18 +507,30 @@ class Bench:
                 await reader.close()
 
 
-async def run(work: Path, log: Callable[[str], None], restarts: int = RESTARTS) -> RestartsResult:
-    """The whole measurement; ``work`` gets the site copy, the run directory and the logs."""
+async def run(
+    work: Path,
+    log: Callable[[str], None],
+    restarts: int = RESTARTS,
+    *,
+    tiers: Sequence[str] = TIERS,
+    safe_state: str | None = None,
+) -> RestartsResult:
+    """The whole measurement; ``work`` gets the site copy, the run directory and the logs.
+
+    ``tiers``: which tiers each round kills (in this order); ``safe_state``: every pump's
+    ``watchdog_safe_state`` (None: the config's, the shipped ``off``)."""
     started = time.monotonic()
-    bench = Bench(work, restarts, log)
-    result = RestartsResult(base=bench.base, restarts_per_tier=restarts)
+    bench = Bench(work, restarts, log, safe_state)
+    result = RestartsResult(
+        base=bench.base, restarts_per_tier=restarts, tiers=list(tiers), safe_state=safe_state
+    )
     load0 = os.getloadavg()[0]
     log(f"restarts: tankctl up on base port {bench.base}, run directory {bench.run_dir}")
     await bench.up.start()
     try:
         await bench.settle(result)
         for k in range(1, restarts + 1):
-            for tier in TIERS:
+            for tier in tiers:
                 r = await bench.kill_one(tier, k)
                 result.restarts.append(r)
                 log(describe(r))
@@ -630,24 +650,35 @@ def _summary(values: Sequence[float]) -> str:
 
 def markdown(result: RestartsResult) -> str:
     """The section of docs/benchmarks.md."""
-    by_tier = {t: [r for r in result.restarts if r.tier == t] for t in TIERS}
-    plc = by_tier["plc"]
+    by_tier = {t: [r for r in result.restarts if r.tier == t] for t in result.tiers}
+    plc = by_tier.get("plc", [])
     devs = [1e3 * r.deviation_m for r in plc if r.deviation_m is not None]
-    lines = [
-        "## 9. Restarts under a running stack (`tankctl up`, speed 1)",
-        "",
-        f"`benchmarks.restarts` (`python -m benchmarks.run --only restarts`): `tankctl up --speed 1` on the "
-        "three-tank Energies site (a copy of `configs/three_tank_energies_sim.yaml` starting at the "
-        f"operating point, `stack.restart: true`, `max_restarts: {result.restarts_per_tier}`; the plant's "
-        "watchdog keeps the shipped safe state `off`, 10 s). Settings applied through OPC UA as the "
-        "engineer before the first kill: T2 leak 0.1, V32 opening 0.8, T3 disturbance 2e-6 m^3/s, a 5 mm "
-        "BIAS fault on LT3, setpoints 0.405 / 0.205 m, LIC2 SPHigh 0.5 m, engineer gains on LIC1, the "
-        "supervisor in ADAPTIVE_PID adapting LIC2; no scenario file (the benchmark drives the settings "
-        "itself). Each round SIGKILLs the PLC, the plant and the supervisor, one at a time (the pid in "
-        "`up`'s pid file), waits for `up` to restart it and for the stack to be healthy (the tier "
-        "answers, the PLC's IO is healthy, PLC and supervisor linked), then compares every compared "
-        "node (the plant's writable nodes, the PLC's retentive nodes and interlock latches, "
-        "`Supervisor.Mode`) with its value before the kill.",
+    if result.safe_state is not None:
+        lines = [
+            f"### 9b. The PLC alone, every pump's watchdog safe state `{result.safe_state}`",
+            "",
+            f"The same stack, settings and waits with `plant.pumps[].watchdog_safe_state: "
+            f"{result.safe_state}` (decision 0019's remedy for a PLC restart gap longer than the "
+            f"plant's command timeout); each round kills only the {', '.join(result.tiers)}.",
+        ]
+    else:
+        lines = [
+            "## 9. Restarts under a running stack (`tankctl up`, speed 1)",
+            "",
+            "`benchmarks.restarts` (`python -m benchmarks.run --only restarts`): `tankctl up --speed 1` "
+            "on the three-tank Energies site (a copy of `configs/three_tank_energies_sim.yaml` starting "
+            f"at the operating point, `stack.restart: true`, `max_restarts: {result.restarts_per_tier}`; "
+            "the plant's watchdog keeps the shipped safe state `off`, 10 s). Settings applied through "
+            "OPC UA as the engineer before the first kill: T2 leak 0.1, V32 opening 0.8, T3 disturbance "
+            "2e-6 m^3/s, a 5 mm BIAS fault on LT3, setpoints 0.405 / 0.205 m, LIC2 SPHigh 0.5 m, engineer "
+            "gains on LIC1, the supervisor in ADAPTIVE_PID adapting LIC2; no scenario file (the benchmark "
+            "drives the settings itself). Each round SIGKILLs the PLC, the plant and the supervisor, one "
+            "at a time (the pid in `up`'s pid file), waits for `up` to restart it and for the stack to be "
+            "healthy (the tier answers, the PLC's IO is healthy, PLC and supervisor linked), then compares "
+            "every compared node (the plant's writable nodes, the PLC's retentive nodes and interlock "
+            "latches, `Supervisor.Mode`) with its value before the kill.",
+        ]
+    lines += [
         "",
         "| tier | restarts | settings lost | kill -> tier back, median / max [s] "
         "| kill -> stack healthy, median / max [s] | processes per tier after each restart "

@@ -196,9 +196,14 @@ def main(argv: list[str] | None = None) -> int:
         _log("restarts (each tier SIGKILLed under tankctl up at speed 1):")
         n = 5 if args.quick else restarts.RESTARTS
         result = asyncio.run(restarts.run(ROOT / "var" / "bench-restarts", _log, n))
-        rep.extra.append(restarts.markdown(result))
         rep.more_goals += restarts.goals(result)
         rep.errors += [f"restarts: {e}" for e in result.errors]
+        _log("restarts, the PLC alone with every pump's watchdog safe state hold:")
+        hold = asyncio.run(
+            restarts.run(ROOT / "var" / "bench-restarts-hold", _log, n, tiers=("plc",), safe_state="hold")
+        )
+        rep.errors += [f"restarts (hold): {e}" for e in hold.errors]
+        rep.extra.append(restarts.markdown(result).rstrip() + "\n\n" + restarts.markdown(hold))
 
     section("security", run_security)
     section("restarts", run_restarts)
