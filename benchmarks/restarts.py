@@ -706,7 +706,10 @@ def markdown(result: RestartsResult) -> str:
         f"until {POST_S:g} s after the PLC is healthy again, median / max **{_summary(devs)} mm** "
         f"(target <= {1e3 * DEVIATION_TARGET_M:g} mm; {sum(d > 1e3 * DEVIATION_TARGET_M for d in devs)} of "
         f"{len(devs)} over); the plant's watchdog stopped the pumps in {stopped} of {len(plc)}. A quiet "
-        f"20 s window before the first kill: {1e3 * result.baseline_m:.2f} mm.",
+        f"20 s window before the first kill: {1e3 * result.baseline_m:.2f} mm. Once the PLC has been "
+        "away for the plant's command timeout (10 s) the watchdog puts the pumps in their safe state; "
+        "with `off`, T1 then falls by its outflow alone, about 2 mm/s here (Q1 about 3.0e-5 m^3/s over "
+        "0.0154 m^2), so a gap 3 s longer than the timeout already costs about 5 mm.",
         "",
         f"Settings lost: **{len(lost)}** in {len(result.restarts)} restarts"
         + (": " + ", ".join(f"{k} ({n}x)" for k, n in sorted(kinds.items())) if kinds else "")
@@ -730,13 +733,33 @@ def markdown(result: RestartsResult) -> str:
         ]
     thetas = [r.theta_change for r in plc if r.theta_change is not None]
     if thetas:
+        off = [r.theta_change for r in plc if r.theta_change is not None and r.pumps_stopped]
+        on = [r.theta_change for r in plc if r.theta_change is not None and not r.pumps_stopped]
         lines += [
             "RLS across a PLC restart (the supervisor stays up, ADAPTIVE_PID on LIC2): largest change "
             "of a gain in `Supervisor.RLS.LIC2.Theta` over the restart window, as a fraction of LIC2's "
-            "gain-box width, median / max "
-            f"{_summary(thetas)}, against {fmt(result.theta_quiet_change or float('nan'))} over the "
-            f"quiet {QUIET_S:g} s window before the first kill; gain sets accepted on LIC2 during the "
-            f"windows {sum(r.pushes for r in plc)}, refused {sum(r.refusals for r in plc)}.",
+            f"gain-box width, median / max {_summary(thetas)}: {_summary(off)} over the {len(off)} "
+            f"restarts whose gap let the watchdog stop the pumps, {_summary(on)} over the {len(on)} "
+            f"others; {fmt(result.theta_quiet_change or float('nan'))} over the quiet {QUIET_S:g} s "
+            f"window before the first kill. Gain sets accepted on LIC2 during the windows "
+            f"{sum(r.pushes for r in plc)}, refused {sum(r.refusals for r in plc)} (a restarted PLC "
+            "refuses the supervisor's SetGains until it trusts the supervisor again, "
+            "`watchdog.good_scans_to_accept`). The scan counter continues across a warm restart, so "
+            "the adapter (`PidGainAdapter.observe`) forms a sample whose window spans the restart "
+            "when the new PLC's first scan follows the last one the supervisor read, or repeats it "
+            "(a SIGKILL lost the last retentive write: the repeat is ignored as a duplicate and the "
+            "next scan is consecutive); it drops the window as a gap only when two or more writes "
+            "were lost. The published nodes cannot separate that one sample from the recovery's "
+            "ordinary samples that follow it.",
+            "",
+        ]
+    if any("Supervisor.Mode" in x for r in result.restarts for x in r.lost):
+        lines += [
+            "`Supervisor.Mode` is not retentive: a restarted supervisor starts in its config's mode "
+            "(here ADVISORY), so the engineer's ADAPTIVE_PID is lost at every supervisor restart; "
+            "the benchmark writes it again after counting it. LIC2's gains then fall back (the "
+            "PLC's supervisor watchdog) and are the supervisor's again after its next push: those "
+            "are the supervisor-owned changes, not settings.",
             "",
         ]
     if result.errors:
