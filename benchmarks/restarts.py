@@ -735,12 +735,13 @@ def markdown(result: RestartsResult) -> str:
     if thetas:
         off = [r.theta_change for r in plc if r.theta_change is not None and r.pumps_stopped]
         on = [r.theta_change for r in plc if r.theta_change is not None and not r.pumps_stopped]
+        quiet = float("nan") if result.theta_quiet_change is None else result.theta_quiet_change
         lines += [
             "RLS across a PLC restart (the supervisor stays up, ADAPTIVE_PID on LIC2): largest change "
             "of a gain in `Supervisor.RLS.LIC2.Theta` over the restart window, as a fraction of LIC2's "
             f"gain-box width, median / max {_summary(thetas)}: {_summary(off)} over the {len(off)} "
             f"restarts whose gap let the watchdog stop the pumps, {_summary(on)} over the {len(on)} "
-            f"others; {fmt(result.theta_quiet_change or float('nan'))} over the quiet {QUIET_S:g} s "
+            f"others; {fmt(quiet)} over the quiet {QUIET_S:g} s "
             f"window before the first kill. Gain sets accepted on LIC2 during the windows "
             f"{sum(r.pushes for r in plc)}, refused {sum(r.refusals for r in plc)} (a restarted PLC "
             "refuses the supervisor's SetGains until it trusts the supervisor again, "
