@@ -214,3 +214,27 @@ class Proc:
             return self.log_path.read_text(encoding="utf-8", errors="replace")
         except OSError:
             return ""
+
+
+def tankctl_pids(
+    ports: list[int], flags: tuple[str, ...] = ("--port", "--base-port")
+) -> dict[int, list[int]]:
+    """Live ``tankctl`` processes (Linux /proc, zombies excluded) bound by their arguments to one
+    of ``ports``: per port, the pids whose ``flags`` option names it. ``tankctl up`` names its base
+    port with ``--base-port``, each tier its own with ``--port``."""
+    wanted = {str(p): p for p in ports}
+    found: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            continue
+        if state == "Z" or "tankctl" not in argv:
+            continue
+        named = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in flags}
+        for port in sorted(named & wanted.keys()):
+            found.setdefault(wanted[port], []).append(int(entry.name))
+    return found

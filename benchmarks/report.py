@@ -53,9 +53,9 @@ class Report:
     """:func:`benchmarks.common.speed_reference` at the start and at the end of the run [ms]."""
     errors: list[str] = field(default_factory=list)
     extra: list[str] = field(default_factory=list)
-    """Whole markdown sections of other benchmark modules (robustness, security, cli), in order."""
+    """Whole markdown sections of other benchmark modules (robustness, security, cli, restarts), in order."""
     extra_goals: list[Goal] = field(default_factory=list)
-    """Goals measured by those modules (cli: operator command wall time), after the others."""
+    """Goals measured by those modules (cli: operator command wall time; restarts), after the others."""
 
 
 def _load(cores: float) -> str:

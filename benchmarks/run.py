@@ -10,7 +10,10 @@ Usage::
 Sections: ``mpc`` (MPC step time against cvxpy and do-mpc), ``cosim`` (co-simulation speed and
 hot spots), ``stack`` (OPC UA round trip, setpoint-to-action, PLC scan lateness, lock-step speed
 through real processes), ``robustness``, ``security``, ``cli`` (operator command wall time
-and the CLI's import cost). Progress goes to stderr; the document is written at the end.
+and the CLI's import cost), ``restarts`` (each tier SIGKILLed 20 times under ``tankctl up`` at
+speed 1: settings lost, level deviation, restart time, processes left). Progress goes to stderr;
+the document is written at the end. ``--only`` writes a document with those sections alone:
+give it an ``--output`` to keep docs/benchmarks.md whole.
 """
 
 from __future__ import annotations
@@ -26,11 +29,11 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from benchmarks import accuracy, cli, cosim, mpc, report, robustness, security, stack
+from benchmarks import accuracy, cli, cosim, mpc, report, restarts, robustness, security, stack
 from benchmarks.common import ROOT, machine, speed_reference, versions
 from tanklab.threads import limit_blas_threads
 
-SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli")
+SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli", "restarts")
 
 
 @dataclass(frozen=True)
@@ -201,8 +204,23 @@ def main(argv: list[str] | None = None) -> int:
     section("cosim", run_cosim)
     section("stack", run_stack)
     section("robustness", run_robustness)
+
+    def run_restarts() -> None:
+        _log("restarts (each tier SIGKILLed under tankctl up at speed 1):")
+        n = 5 if args.quick else restarts.RESTARTS
+        result = asyncio.run(restarts.run(ROOT / "var" / "bench-restarts", _log, n))
+        rep.extra_goals += restarts.goals(result)
+        rep.errors += [f"restarts: {e}" for e in result.errors]
+        _log("restarts, the PLC alone with every pump's watchdog safe state hold:")
+        hold = asyncio.run(
+            restarts.run(ROOT / "var" / "bench-restarts-hold", _log, n, tiers=("plc",), safe_state="hold")
+        )
+        rep.errors += [f"restarts (hold): {e}" for e in hold.errors]
+        rep.extra.append(restarts.markdown(result).rstrip() + "\n\n" + restarts.markdown(hold))
+
     section("security", run_security)
     section("cli", run_cli)
+    section("restarts", run_restarts)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

@@ -18,6 +18,7 @@ from asyncua import Client
 if str(Path(__file__).resolve().parents[1]) not in sys.path:  # benchmarks/ lives at the root
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.procs import free_base_port as _free_base_port
+from benchmarks.procs import tankctl_pids
 
 from tanklab.home import SecurityHome
 from tanklab.tags import Role
@@ -174,23 +175,9 @@ def _site_name(config: Path) -> str:
 
 
 def tanklab_pids(base: int) -> list[int]:
-    """Live tankctl processes bound (by their arguments) to the ports base..base+2."""
-    ports = {str(base + k) for k in range(3)}
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if state == "Z" or "tankctl" not in argv:
-            continue
-        flags = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--port", "--base-port")}
-        if flags & ports:
-            found.append(int(entry.name))
-    return found
+    """Live tankctl processes bound (by their arguments) to the ports base..base+2
+    (``benchmarks.procs.tankctl_pids``, which the restart benchmark counts with too)."""
+    return sorted({p for ps in tankctl_pids([base + k for k in range(3)]).values() for p in ps})
 
 
 class UpProcess:
