@@ -155,6 +155,33 @@ def _trace_row(
     return row + [float(x) for lp in program.loops for x in (lp.sp_m, int(lp.mode), int(lp.source))]
 
 
+async def warm_resume(program: PlcProgram, field_link: FieldLink, *, hold_outputs: bool) -> None:
+    """Bumpless warm restart: continue from where the pumps and the levels are now.
+
+    ``hold_outputs`` (real time): write the plant's own pump commands straight back, before the
+    server starts and before the first scan. The flows do not change; the write refreshes the
+    plant's command watchdog (``plant.watchdog.command_timeout_s``), which the PLC's restart
+    gap (interpreter, imports, server start-up: 8 to 22 s measured on a loaded two-core
+    machine, docs/benchmarks.md section 10) would otherwise outlast, stopping the pumps under a
+    shipped safe state ``off``. A watchdog that already tripped is reset to those commands,
+    which is what the first scan would apply anyway. In lock-step the plant does not advance
+    without the PLC, so there is nothing to hold.
+    """
+    state = await field_link.read_state()
+    if state is None:
+        log.warning("warm restart: the plant cannot be read; the loops resume from their retained MVs")
+        return
+    commands, now = state
+    program.resume_from_plant(commands, now.levels_m, now.good)
+    log.info(
+        "warm restart: resumed from the plant's commands %s and levels %s",
+        [float(c) for c in commands],
+        [float(x) for x in now.levels_m],
+    )
+    if hold_outputs and bool(np.isfinite(commands).all()) and await field_link.write_commands(commands):
+        log.info("warm restart: pump commands held (plant watchdog refreshed) before the server starts")
+
+
 async def run_plc(
     site: SiteConfig,
     *,
@@ -213,28 +240,20 @@ async def run_plc(
             store.offer(program.retained())
 
     server.on_change = save_retained
+    # Connect to the plant before the first deadline: the secure handshake (a few hundred ms of
+    # RSA and session set-up) is start-up, not scan work, and must not count as an overrun.
+    # On a warm restart this comes before the OPC UA server starts (seconds on a loaded
+    # machine), so the pumps are held as they are as early as possible.
+    await field_link.ensure()
+    if warm:
+        await warm_resume(program, field_link, hold_outputs=not lockstep)
     await server.start()
     await server.publish({"PLC.Status.ScanPeriod": ts, "PLC.Supervisor.Timeout": program.watchdog.timeout_s})
+    if warm:
+        await server.publish(program.values())
     if ready is not None:
         ready.set()
     period = ts / speed
-    # Connect to the plant before the first deadline: the secure handshake (a few hundred ms of
-    # RSA and session set-up) is start-up, not scan work, and must not count as an overrun.
-    await field_link.ensure()
-    if warm:
-        # Bumpless warm restart: start from where the pumps and the levels are now.
-        state = await field_link.read_state()
-        if state is None:
-            log.warning("warm restart: the plant cannot be read; the loops resume from their retained MVs")
-        else:
-            commands, now = state
-            program.resume_from_plant(commands, now.levels_m, now.good)
-            log.info(
-                "warm restart: resumed from the plant's commands %s and levels %s",
-                [float(c) for c in commands],
-                [float(x) for x in now.levels_m],
-            )
-        await server.publish(program.values())
     deadlines = Deadlines(period_s=period, next_deadline=clock.now())
     t_model = program.next_scan_t_s if warm else 0.0
     pending: FieldReadings | None = None  # lock-step: readings returned by the last Advance

@@ -16,10 +16,14 @@ from pathlib import Path
 import pytest
 from asyncua import ua
 
-from helpers import free_port, secure, server_security, wait_until
+from helpers import free_port, identity, secure, server_security, wait_until
 from plant_sim.runtime import run_plant
+from plc_emulator.link import FieldLink
+from plc_emulator.program import PlcProgram
+from plc_emulator.runtime import warm_resume
 from tanklab.config import load_site
 from tanklab.ua import read_values, resolve
+from tanklab.ua_security import client_setup
 
 ROOT = Path(__file__).resolve().parents[2]
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
@@ -173,3 +177,36 @@ async def test_tankctl_plant_prints_its_endpoint_and_stops_on_sigterm(tmp_path: 
 
     snap = json.loads((tmp_path / "plant.json").read_text())
     assert snap["leak_openings"][0] == 0.4
+
+
+async def test_a_warm_restart_holds_the_pumps_before_the_plc_serves(plant_url: str) -> None:
+    """The PLC's warm restart writes the plant's own commands back before its server starts
+    (``warm_resume(hold_outputs=True)``): flows unchanged, the plant's command watchdog reset.
+    Lock-step (``hold_outputs=False``) leaves the plant alone."""
+    q = 2.0e-5
+    async with await secure(plant_url, tier="plc") as client:
+        n = await resolve(client, ["Plant.P1.Command", "Plant.Sim.Watchdog"])
+        await n["Plant.P1.Command"].write_value(ua.Variant(q, ua.VariantType.Double))
+
+        async def tripped() -> bool:
+            return bool(await n["Plant.Sim.Watchdog"].read_value())
+
+        # No PLC writes any more: the plant's watchdog puts the pumps in their safe state.
+        await wait_until(tripped, 60, what="the plant's command watchdog")
+        program = PlcProgram(SITE, watchdog_timeout_s=SITE.plc.watchdog.timeout_s)
+        field = FieldLink(SITE, plant_url, setup=client_setup(identity(tier="plc")))
+        try:
+            await warm_resume(program, field, hold_outputs=False)
+            assert await tripped()
+            await warm_resume(program, field, hold_outputs=True)
+
+            async def reset() -> bool:  # the plant publishes the flag at its next step
+                return not await tripped()
+
+            await wait_until(reset, 20, what="the plant's watchdog reset by the held commands")
+            assert await n["Plant.P1.Command"].read_value() == q
+            # The loop on P1 resumed from the plant's command: its MV is that command.
+            lic1 = next(lp for lp in program.loops if lp.pump == 0)
+            assert lic1.mv == q
+        finally:
+            await field.link.close()
