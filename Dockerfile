@@ -8,18 +8,29 @@
 # /opt/venv (docker/install.sh: the same script tests/test_docker.py runs in a fresh venv).
 # Every dependency comes as a binary wheel, so neither stage installs a compiler. Stage 2 gets
 # only /opt/venv and configs/ and runs as an unprivileged user.
+#
+# BASE_IMAGE (both stages; default python:3.11-slim): any Debian-like image with python3 (3.11),
+# its venv module, pip, groupadd and useradd, e.g. a local stand-in built with debootstrap where
+# no registry is reachable (docs/docker.md; docker-compose.yml passes $TANKLAB_BASE_IMAGE).
+# docker/pip-ca.crt, when present (never in git: docs/docker.md), is the CA bundle pip in the
+# builder stage trusts (a site whose TLS is intercepted); it stays in the builder stage.
 
-FROM python:3.11-slim AS builder
+ARG BASE_IMAGE=python:3.11-slim
+
+FROM ${BASE_IMAGE} AS builder
 ENV PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PIP_ROOT_USER_ACTION=ignore
 WORKDIR /src
-COPY docker/install.sh /usr/local/bin/tanklab-install
-COPY pyproject.toml README.md ./
+COPY docker/ /usr/local/share/tanklab-docker/
+COPY pyproject.toml ./
+# The dependencies in a layer of their own: a change to src/ (or README.md) reuses it.
+RUN sh /usr/local/share/tanklab-docker/install.sh --deps-only /src /opt/venv
+COPY README.md ./
 COPY src ./src
-RUN sh /usr/local/bin/tanklab-install /src /opt/venv /tmp/wheels
+RUN sh /usr/local/share/tanklab-docker/install.sh /src /opt/venv /tmp/wheels
 
-FROM python:3.11-slim
+FROM ${BASE_IMAGE}
 # TANKLAB_HOST=0.0.0.0: a tier in a container must listen on every interface to be reachable
 # from the other containers and through the published ports (the CLI's default is 127.0.0.1).
 # TANKLAB_HOME: where the certificates, the tier's key and the users file are mounted read-only

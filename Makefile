@@ -44,18 +44,24 @@ lint: venv
 typecheck: venv
 	$(BIN)/mypy
 
-# tests/test_docker.py validates docker-compose.yml with `docker-compose config` (Debian's
-# package; no Docker engine needed, so --no-install-recommends keeps docker.io out). Installed
-# when missing and running as root with apt-get; otherwise say so, and that test skips.
+# Debian's docker-compose (1.29: tests/test_docker.py's `docker-compose config`), docker.io (the
+# dockerd that tests/system/test_docker_engine.py starts, on its own socket, and stops) and
+# debootstrap (that test's local base image: no registry is needed). Installed when missing and
+# running as root with apt-get (no daemon is started by the package here); otherwise say so, and
+# those tests skip.
 tools:
-	@if command -v docker-compose >/dev/null 2>&1; then :; \
+	@missing=""; \
+	command -v docker-compose >/dev/null 2>&1 || missing="$$missing docker-compose"; \
+	command -v dockerd >/dev/null 2>&1 || missing="$$missing docker.io"; \
+	command -v debootstrap >/dev/null 2>&1 || missing="$$missing debootstrap"; \
+	if [ -z "$$missing" ]; then :; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	  echo "make tools: installing docker-compose (Debian package) for tests/test_docker.py"; \
+	  echo "make tools: installing$$missing (Debian packages) for tests/test_docker.py and tests/system/test_docker_engine.py"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
-	    apt-get install -y -qq --no-install-recommends docker-compose >/dev/null; \
+	    apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	else \
-	  echo "make tools: docker-compose is missing and cannot be installed (needs root and apt-get);" \
-	       "tests/test_docker.py will skip its 'docker-compose config' check"; \
+	  echo "make tools:$$missing missing and cannot be installed (needs root and apt-get);" \
+	       "the Docker tests will skip and say why"; \
 	fi
 	@$(MAKE) --no-print-directory node-tools
 

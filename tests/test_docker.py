@@ -1,13 +1,14 @@
 """Docker packaging without a Docker engine: the compose file, the Dockerfile, the image's steps.
 
-No engine runs on the development machines, so the image is never built here. What is checked:
+These checks need no engine and run everywhere; tests/system/test_docker_engine.py builds the
+image and runs the README's Docker steps on a real one (dockerd started by that test). Here:
 
 1. ``docker-compose config`` (Debian's docker-compose 1.29, installed by ``make tools``)
    accepts docker-compose.yml, and rejects a broken copy (so the check has teeth);
 2. the compose wiring, parsed: three tiers, their commands, published ports, endpoints by
    service name, healthchecks that run ``tankctl.health`` against the tier's own port,
    ``depends_on`` on healthy tiers, restart policies, the control / supervisory networks;
-3. the Dockerfile, parsed: two stages on python:3.11-slim, the install done by
+3. the Dockerfile, parsed: two stages on ``ARG BASE_IMAGE`` (python:3.11-slim), the install done by
    docker/install.sh, only /opt/venv and configs/ in the final stage, no compilers, a
    non-root user, ``ENTRYPOINT ["tankctl"]``;
 4. the image's install and start steps for real: docker/install.sh builds the wheel and
@@ -148,6 +149,8 @@ def test_compose_has_the_three_tiers_built_from_one_image() -> None:
         build = services[name]["build"]
         context = build if isinstance(build, str) else build.get("context", ".")
         assert (COMPOSE.parent / context / "Dockerfile").resolve() == DOCKERFILE
+        # The base image is the Dockerfile's build argument, from the environment or the default.
+        assert build["args"]["BASE_IMAGE"] == "${TANKLAB_BASE_IMAGE:-python:3.11-slim}"
 
 
 def test_compose_runs_each_tier_command_on_its_published_port() -> None:
@@ -156,7 +159,10 @@ def test_compose_runs_each_tier_command_on_its_published_port() -> None:
     for name, port in TIERS.items():
         s = services[name]
         assert _command(s)[0] == name
-        assert f"{port}:{port}" in [str(p) for p in s["ports"]], f"{name}: port {port} not published"
+        published = [_interpolated(str(p)) for p in s["ports"]]
+        assert f"{port}:{port}" in published, f"{name}: port {port} not published"
+        # The host port can move (TANKLAB_<TIER>_HOST_PORT): the engine test publishes free ports.
+        assert f"${{TANKLAB_{name.upper()}_HOST_PORT:-{port}}}:{port}" in [str(p) for p in s["ports"]]
         env = _env(s)
         # Listening on every interface (image ENV or service env) is what makes ports reachable.
         assert env.get("TANKLAB_HOST", image_env.get("TANKLAB_HOST")) == "0.0.0.0"
@@ -213,17 +219,14 @@ def _mounts(service: dict[str, Any]) -> dict[str, tuple[str, str]]:
     return out
 
 
-def test_compose_mounts_secrets_read_only_and_only_the_tiers_own_key() -> None:
+def test_compose_mounts_each_tiers_container_home_read_only() -> None:
     services = _compose()["services"]
     for tier in ("plant", "plc", "supervisor"):
         mounts = _mounts(services[tier])
         secret = {c: hm for c, hm in mounts.items() if c.startswith("/etc/tanklab")}
-        assert all(mode == "ro" for _, mode in secret.values()), tier
-        keys = [c for c in secret if c.startswith("/etc/tanklab/pki/private")]
-        assert keys == [f"/etc/tanklab/pki/private/{tier}.pem"], tier
-        for needed in ("pki/own", "pki/trusted", "pki/crl", "users.json"):
-            assert f"/etc/tanklab/{needed}" in secret, (tier, needed)
-        assert "/etc/tanklab/pki/ca" not in secret  # the CA key stays on the host
+        # One mount: the tier's copy laid out by `tankctl pki containers` (only its own key,
+        # owned by the image's user; tests/tanklab/test_containers.py checks the layout).
+        assert secret == {"/etc/tanklab": (f"./.tanklab/containers/{tier}", "ro")}, tier
     assert _dockerfile_env(_stages(_instructions())[-1])["TANKLAB_HOME"] == "/etc/tanklab"
 
 
@@ -324,6 +327,8 @@ def _instructions() -> list[Instruction]:
 def _stages(instructions: list[Instruction]) -> list[Stage]:
     stages: list[Stage] = []
     for ins in instructions:
+        if ins.keyword == "ARG" and not stages:
+            continue  # a global ARG (the base image), before the first stage
         if ins.keyword == "FROM":
             parts = ins.args.split()
             name = parts[2] if len(parts) == 3 and parts[1].upper() == "AS" else None
@@ -344,16 +349,29 @@ def _dockerfile_env(stage: Stage) -> dict[str, str]:
 
 
 def test_dockerfile_has_a_builder_and_a_slim_final_stage() -> None:
-    builder, final = _stages(_instructions())
-    assert builder.base == "python:3.11-slim" and builder.name == "builder"
-    assert final.base == "python:3.11-slim"
+    instructions = _instructions()
+    # ARG before the first FROM: the base image of both stages, python:3.11-slim by default.
+    assert instructions[0] == Instruction("ARG", "BASE_IMAGE=python:3.11-slim")
+    builder, final = _stages(instructions)
+    assert builder.base == "${BASE_IMAGE}" and builder.name == "builder"
+    assert final.base == "${BASE_IMAGE}"
     # The builder runs docker/install.sh (the same script the fresh-venv test below runs).
     copies = [c.args.split() for c in builder.all("COPY")]
-    assert ["docker/install.sh", "/usr/local/bin/tanklab-install"] in copies
-    (run,) = builder.all("RUN")
+    assert ["docker/", "/usr/local/share/tanklab-docker/"] in copies
+    deps, run = builder.all("RUN")
+    # First the dependencies alone (a layer only pyproject.toml feeds), then the project.
+    assert shlex.split(deps.args) == [
+        "sh",
+        "/usr/local/share/tanklab-docker/install.sh",
+        "--deps-only",
+        "/src",
+        "/opt/venv",
+    ]
+    body = builder.body
+    assert body.index(deps) < min(body.index(c) for c in builder.all("COPY") if c.args.startswith("src"))
     assert shlex.split(run.args) == [
         "sh",
-        "/usr/local/bin/tanklab-install",
+        "/usr/local/share/tanklab-docker/install.sh",
         "/src",
         "/opt/venv",
         "/tmp/wheels",
@@ -442,17 +460,28 @@ def fresh_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("TANKLAB_", "VIRTUAL_ENV", "PYTHON"))}
     env["PYTHON"] = sys.executable  # the builder stage's python3 is 3.11 too
     env["PIP_DISABLE_PIP_VERSION_CHECK"] = "1"
-    result = subprocess.run(
-        ["sh", str(INSTALL_SCRIPT), str(ROOT), str(venv), str(wheels)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=240,
-        check=False,
-    )
-    assert result.returncode == 0, (
-        f"docker/install.sh failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
-    )
+    # The builder's two steps: the dependencies alone (its own layer), then the project.
+    for args in (["--deps-only", str(ROOT), str(venv)], [str(ROOT), str(venv), str(wheels)]):
+        result = subprocess.run(
+            ["sh", str(INSTALL_SCRIPT), *args],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=240,
+            check=False,
+        )
+        assert result.returncode == 0, (
+            f"docker/install.sh {args[0]} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
+        )
+        if args[0] == "--deps-only":
+            # Every runtime dependency, and not the project itself yet.
+            listed = subprocess.run(
+                [str(venv / "bin" / "python"), "-m", "pip", "list", "--format=freeze"],
+                capture_output=True,
+                text=True,
+                check=True,
+            ).stdout.lower()
+            assert "asyncua==" in listed and "numpy==" in listed and "tanklab==" not in listed
     return venv
 
 

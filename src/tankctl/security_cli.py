@@ -6,6 +6,7 @@
     tankctl pki trust FILE [--home DIR]          add an external certificate (DER or PEM)
     tankctl pki revoke FILE [--home DIR]         put a CA-issued certificate on the CRL
     tankctl pki show [--home DIR] [--json]      what a client must trust and use; the certificates
+    tankctl pki containers [--home DIR] [--uid N] [--gid N]   per-tier copies for docker-compose.yml
     tankctl user add NAME --role ROLE [--home DIR] [--password-stdin] [--replace]
     tankctl user list [--home DIR]
     tankctl user remove NAME [--home DIR]
@@ -34,6 +35,7 @@ from typing import Annotated, Any, NoReturn, TypeVar
 import typer
 
 from tankctl.usage import OneLineUsage
+from tanklab.containers import CONTAINER_GID, CONTAINER_UID, container_root, lay_out
 from tanklab.errors import TanklabError
 from tanklab.home import SecurityHome, default_home
 from tanklab.pki import (
@@ -222,6 +224,26 @@ def pki_show(
     typer.echo("")
     for line in _table(rows):
         typer.echo(line)
+
+
+@pki_app.command("containers", cls=OneLineUsage)
+def pki_containers(
+    home: HomeOpt = None,
+    uid: Annotated[
+        int, typer.Option(help="Owner of the copies: the image's user (needs root unless your own uid).")
+    ] = CONTAINER_UID,
+    gid: Annotated[int, typer.Option(help="Group of the copies: the image's group.")] = CONTAINER_GID,
+) -> None:
+    """Lay out HOME/containers/{plant,plc,supervisor}: each tier's certificates, trust list, CRL,
+    users file and only its own key, owned by the container's user; docker-compose.yml mounts them.
+
+    Run it again after `pki init --force`, `pki revoke` or `user add`: it replaces the copies.
+    """
+    sec = _home(home)
+    laid = _guard(lambda: lay_out(sec, uid=uid, gid=gid))
+    for tier in laid:
+        typer.echo(f"{tier.tier}: {tier.root} ({len(tier.files)} files, owner {uid}:{gid}, key 0600)")
+    typer.echo(f"docker-compose.yml mounts {container_root(sec)}/TIER read-only at /etc/tanklab")
 
 
 # --------------------------------------------------------------------------------------------

@@ -7,6 +7,7 @@ no output may contain a password or key material.
 from __future__ import annotations
 
 import json
+import os
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -357,3 +358,40 @@ def test_user_list_empty_and_corrupt(tmp_path: Path) -> None:
     (tmp_path / "users.json").write_text('{"users": {"x": {"role": "PLC", "password_hash": "h"}}}')
     line = one_line_error(run("user", "list", "--home", str(tmp_path)))
     assert line.startswith(f"tankctl: {tmp_path / 'users.json'}: users.x.role: must be one of")
+
+
+def test_pki_containers_lays_out_each_tier_and_says_where(tmp_path: Path) -> None:
+    home = tmp_path / "home"
+    assert run("pki", "init", "--home", str(home)).code == 0
+    refused = one_line_error(run("pki", "containers", "--home", str(home)))
+    assert "no users file" in refused  # a tier without users could serve no login
+    added = run(
+        "user",
+        "add",
+        "alice",
+        "--role",
+        "Operator",
+        "--home",
+        str(home),
+        "--password-stdin",
+        stdin="pw-123456789\n",
+    )
+    assert added.code == 0
+    if os.geteuid() != 0:
+        line = one_line_error(run("pki", "containers", "--home", str(home)))
+        assert "needs root" in line and "sudo" in line
+        return
+    ran = run("pki", "containers", "--home", str(home))
+    assert ran.code == 0, ran.stderr
+    lines = ran.stdout.splitlines()
+    for tier, line in zip(("plant", "plc", "supervisor"), lines, strict=False):
+        assert line == f"{tier}: {home / 'containers' / tier} (8 files, owner 10001:10001, key 0600)"
+    assert lines[-1] == f"docker-compose.yml mounts {home / 'containers'}/TIER read-only at /etc/tanklab"
+    assert (home / "containers" / "plc" / "pki" / "private" / "plc.pem").stat().st_uid == 10001
+
+
+def test_pki_containers_refuses_a_missing_pki_in_one_line(tmp_path: Path) -> None:
+    line = one_line_error(run("pki", "containers", "--home", str(tmp_path / "none")))
+    assert "incomplete PKI" in line
+    line = one_line_error(run("pki", "containers", "--home", str(tmp_path), "--uid", "x"))
+    assert "--uid" in line
