@@ -12,6 +12,12 @@ Staleness watchdog: when ``PLC.Status.Scan`` has not advanced for ``plc_stale_s`
 (at least 1 s of wall time), the PLC counts as lost even if it still answers: the supervisor
 stops writing, drops the link, reconnects, and reads the applied gains back from the next
 snapshot before it pushes anything (the adapter resynchronises from it).
+
+Retentive mode (``retain_file``): the requested mode (an engineer's ``Supervisor.Mode`` write, or
+the shed to ADVISORY) is written atomically on every change and requested again on start, so a
+restarted supervisor goes back to what it was doing at its first cycle, through the same bumpless
+switch as a write (decision 0026). Only the mode is retentive: the estimate, the RLS state and the
+MPC's plan are rebuilt from the PLC's snapshots.
 """
 
 from __future__ import annotations
@@ -26,12 +32,59 @@ from supervisor.port import SupervisorDriver
 from supervisor.server import SupervisorServer
 from tanklab.clock import Clock, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
+from tanklab.enums import SupervisorMode
 from tanklab.errors import LinkError
+from tanklab.persist import read_json, write_json_atomic
 from tanklab.ua_security import ClientIdentity, ServerSecurity, client_setup
 
 log = logging.getLogger(__name__)
 
 WALL_FLOOR_S = 1.0
+
+RETAIN_VERSION = 1
+
+
+class RetainedMode:
+    """The supervisor's retentive memory: its requested mode, in a JSON file.
+
+    ``{"version": 1, "site": NAME, "mode": "MPC"}``. A missing, unreadable or other site's file
+    is not restored (logged), and is overwritten at the first change.
+    """
+
+    def __init__(self, path: Path, site: SiteConfig) -> None:
+        self.path = path
+        self.site = site.name
+        self.saved: SupervisorMode | None = None
+
+    def restore(self, core: SupervisorCore) -> SupervisorMode | None:
+        """Request the saved mode on ``core``; the mode restored, or None (the config's)."""
+        if not self.path.exists():
+            log.info("supervisor mode from the config: no retentive memory at %s yet", self.path)
+            return None
+        try:
+            data = read_json(self.path)
+            if data.get("version") != RETAIN_VERSION or data.get("site") != self.site:
+                raise ValueError(f"written for site {data.get('site')!r}, version {data.get('version')!r}")
+            mode = SupervisorMode[str(data["mode"])]
+            core.request_mode(mode)
+        except (OSError, ValueError, TypeError, KeyError, AttributeError) as e:
+            log.warning("supervisor mode from the config: retentive memory %s not restored: %s", self.path, e)
+            return None
+        self.saved = mode
+        log.info("warm restart from %s: supervisor mode %s", self.path, mode.name)
+        return mode
+
+    def save_if_changed(self, core: SupervisorCore) -> None:
+        """Write the requested mode when it differs from the last one written."""
+        mode = core.requested
+        if mode is self.saved:
+            return
+        try:
+            write_json_atomic(self.path, {"version": RETAIN_VERSION, "site": self.site, "mode": mode.name})
+        except OSError as e:
+            log.warning("supervisor mode %s not saved to %s: %s", mode.name, self.path, e)
+            return
+        self.saved = mode
 
 
 async def run_supervisor(
@@ -47,11 +100,13 @@ async def run_supervisor(
     clock: Clock | None = None,
     ready: asyncio.Event | None = None,
     trace: Path | None = None,
+    retain_file: Path | None = None,
 ) -> SupervisorCore:
     """Supervise the PLC until ``stop`` is set; return the core for inspection.
 
     ``trace``: a CSV file that gets one line per sample whose MPC step ran (see
     :func:`trace_row`): how a lock-step run is compared with the co-simulation.
+    ``retain_file``: the retentive mode (see the module docstring); none by default.
     """
     if site.supervisor is None or site.plc is None:
         raise ValueError(f"site {site.name!r} has no supervisor section")
@@ -59,8 +114,14 @@ async def run_supervisor(
         raise ValueError(f"speed must be > 0, got {speed}")
     clock = clock or MonotonicClock()
     core = SupervisorCore(site)
+    retained = RetainedMode(retain_file, site) if retain_file is not None else None
+    if retained is not None:
+        retained.restore(core)
+        retained.save_if_changed(core)  # the file holds the mode in force from the start
     driver = SupervisorDriver(core)
     server = SupervisorServer(site, core, host, port, security)
+    if retained is not None:
+        server.on_mode = lambda: retained.save_if_changed(core)
     ts_wall = site.plc.scan_period_s / speed
     link = PlcLink(
         site,
@@ -112,6 +173,8 @@ async def run_supervisor(
                 continue
             if core.sheds > sheds:
                 log.warning("MPC shed to ADVISORY: %s (re-engage with `tankctl mode mpc`)", core.shed_reason)
+            if retained is not None:
+                retained.save_if_changed(core)
             try:
                 # The heartbeat goes with the actions (last): the PLC may scan on while this
                 # tier publishes its own diagnostics.

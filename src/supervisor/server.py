@@ -8,6 +8,7 @@ refused with BadInvalidState.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from asyncua import ua
@@ -36,6 +37,8 @@ class SupervisorServer:
         self.security = security
         self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
+        self.on_mode: Callable[[], None] | None = None
+        """Called after an accepted ``Supervisor.Mode`` write (the runtime saves the mode)."""
 
     async def start(self) -> None:
         """Initialise, secure, build the address space and start listening."""
@@ -69,4 +72,6 @@ class SupervisorServer:
             log.info("mode change refused: %s", e)
             return ua.StatusCode(ua.StatusCodes.BadInvalidState)
         log.info("Supervisor.Mode := %s", SupervisorMode(int(value)).name)
+        if self.on_mode is not None:
+            self.on_mode()
         return None

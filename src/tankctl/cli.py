@@ -403,6 +403,10 @@ def supervisor(
     trace: Annotated[
         Path | None, typer.Option(help="CSV file getting one line per MPC sample (scan, time, plan).")
     ] = None,
+    retain_file: Annotated[
+        Path | None,
+        typer.Option(help="Retentive mode: written on every change, restored on start (default: none)."),
+    ] = None,
     home: HomeOpt = None,
     audit_dir: AuditOpt = None,
 ) -> None:
@@ -429,6 +433,7 @@ def supervisor(
             lockstep=lockstep,
             ready=ready,
             trace=trace,
+            retain_file=retain_file,
         )
 
     serve(

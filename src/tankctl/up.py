@@ -283,7 +283,17 @@ class Stack:
         if self.site.supervisor is not None:
             self.tiers["supervisor"] = Tier(
                 "supervisor",
-                ["supervisor", *common, "--port", str(self.base_port + 2), "--plc-url", urls["plc"], *lock],
+                [
+                    "supervisor",
+                    *common,
+                    "--port",
+                    str(self.base_port + 2),
+                    "--plc-url",
+                    urls["plc"],
+                    "--retain-file",
+                    str(self.supervisor_retain_file),
+                    *lock,
+                ],
                 urls["supervisor"],
                 self.base_port + 2,
                 self.log_dir / "supervisor.log",
@@ -301,6 +311,11 @@ class Stack:
         """The PLC's retentive memory of this run directory (like the plant's state file, it is
         the run directory's whatever the config says)."""
         return self.log_dir / "plc-retain.json"
+
+    @property
+    def supervisor_retain_file(self) -> Path:
+        """The supervisor's retentive mode of this run directory."""
+        return self.log_dir / "supervisor-retain.json"
 
     @property
     def pid_path(self) -> Path:
@@ -404,9 +419,15 @@ class Stack:
             ) from None
 
     def discard_saved(self) -> str:
-        """``--fresh``: delete the plant's checkpoint and the PLC's retentive memory; one line."""
+        """``--fresh``: delete the plant's checkpoint and the PLC's and the supervisor's retentive
+        memory; one line."""
         gone = []
-        for what, path in (("plant state", self.state_file), ("PLC retentive memory", self.retain_file)):
+        saved = (
+            ("plant state", self.state_file),
+            ("PLC retentive memory", self.retain_file),
+            ("supervisor mode", self.supervisor_retain_file),
+        )
+        for what, path in saved:
             if path.exists():
                 try:
                     path.unlink()
@@ -415,7 +436,8 @@ class Stack:
                 gone.append(f"{what} {path}")
         if not gone:
             return "fresh start from the config's initial state (there was no saved state)"
-        return f"fresh start from the config's initial state: discarded the saved {' and '.join(gone)}"
+        listed = ", ".join(gone[:-1]) + " and " + gone[-1] if len(gone) > 1 else gone[0]
+        return f"fresh start from the config's initial state: discarded the saved {listed}"
 
     # ---- start ----------------------------------------------------------------------------
 
@@ -566,6 +588,11 @@ class Stack:
                 )
             else:
                 lines.append(f"not saved: PLC retentive memory (no file {self.retain_file})")
+        if "supervisor" in self.tiers and self.tiers["supervisor"] in started:
+            if self.supervisor_retain_file.exists():
+                lines.append(f"saved: supervisor mode in {self.supervisor_retain_file}")
+            else:
+                lines.append(f"not saved: supervisor mode (no file {self.supervisor_retain_file})")
         return lines
 
     def release(self) -> None:

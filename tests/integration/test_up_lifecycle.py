@@ -23,6 +23,7 @@ import pytest
 
 from helpers import ROOT, UpProcess, free_base_port, secure, tanklab_pids, wait_until
 from tankctl.up import last_error_line, running_pid
+from tanklab.enums import SupervisorMode
 from tanklab.ua import resolve
 
 CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
@@ -125,7 +126,7 @@ async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> 
     try:
         await up.started()
         ops = [sys.executable, "-m", "tankctl"]
-        for args in (["leak", "T1", "0.3"], ["setpoint", "LIC1", "0.45"]):
+        for args in (["leak", "T1", "0.3"], ["setpoint", "LIC1", "0.45"], ["mode", "off"]):
             r = subprocess.run(
                 [*ops, *args, "--base-port", str(base)],
                 capture_output=True,
@@ -141,25 +142,45 @@ async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> 
         assert any(
             line.startswith("saved: PLC retentive memory") and str(retain) in line for line in up.lines
         )
+        mode = run_dir / "supervisor-retain.json"
+        assert f"saved: supervisor mode in {mode}" in up.lines
         assert json.loads(state.read_text())["leak_openings"][0] == pytest.approx(0.3)
         assert "0.45" in retain.read_text()
+        assert json.loads(mode.read_text())["mode"] == "OFF"
         await assert_nothing_left(up)
     finally:
         await up.cleanup()
     # The line mode: one line per event, in this order.
-    kinds = ["plant ", "plc ", "supervisor ", "started: ", "stopping (SIGTERM)", "saved: ", "saved: "]
+    kinds = ["plant ", "plc ", "supervisor ", "started: ", "stopping (SIGTERM)", *["saved: "] * 3]
     events = [
         next(k for k in kinds if line.startswith(k)) for line in up.lines if line.startswith(tuple(kinds))
     ]
     assert events == kinds, up.lines
     assert up.lines[-1].startswith("stopped in "), up.lines
 
+    # A restart without --fresh: the supervisor goes back to the engineer's mode (the config's is
+    # ADVISORY) at its first cycle.
+    again = UpProcess(base, tmp_path / "var", "--no-board", "--speed", "5")
+    try:
+        await again.started()
+        async with await secure(f"opc.tcp://127.0.0.1:{base + 2}/tanklab/supervisor") as client:
+            node = (await resolve(client, ["Supervisor.Mode"]))["Supervisor.Mode"]
+
+            async def off() -> bool:
+                return await node.read_value() == int(SupervisorMode.OFF)
+
+            await wait_until(off, 60, what="the restarted supervisor back in OFF")
+        assert (await again.terminate())[0] == 0, again.lines
+        await assert_nothing_left(again)
+    finally:
+        await again.cleanup()
+
     fresh = UpProcess(base, tmp_path / "var", "--no-board", "--speed", "5", "--fresh")
     try:
         await fresh.started()
         assert fresh.lines[0] == (
             "fresh start from the config's initial state: discarded the saved plant state "
-            f"{state} and PLC retentive memory {retain}"
+            f"{state}, PLC retentive memory {retain} and supervisor mode {mode}"
         ), fresh.lines
         plant = f"opc.tcp://127.0.0.1:{base}/tanklab/plant"
         plc = f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc"
@@ -168,6 +189,13 @@ async def test_stop_says_what_it_saved_and_fresh_discards_it(tmp_path: Path) -> 
         async with await secure(plc) as client:
             sp = await (await resolve(client, ["PLC.LIC1.SP"]))["PLC.LIC1.SP"].read_value()
             assert sp == pytest.approx(0.4)
+        async with await secure(f"opc.tcp://127.0.0.1:{base + 2}/tanklab/supervisor") as client:
+            node = (await resolve(client, ["Supervisor.Mode"]))["Supervisor.Mode"]
+
+            async def advisory() -> bool:
+                return await node.read_value() == int(SupervisorMode.ADVISORY)
+
+            await wait_until(advisory, 60, what="the fresh supervisor in the config's ADVISORY")
         assert (await fresh.terminate())[0] == 0, fresh.lines
         assert json.loads(state.read_text())["leak_openings"][0] == 0
         await assert_nothing_left(fresh)

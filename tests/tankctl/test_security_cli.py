@@ -385,7 +385,7 @@ def test_pki_containers_lays_out_each_tier_and_says_where(tmp_path: Path) -> Non
     assert ran.code == 0, ran.stderr
     lines = ran.stdout.splitlines()
     for tier, line in zip(("plant", "plc", "supervisor"), lines, strict=False):
-        assert line == f"{tier}: {home / 'containers' / tier} (8 files, owner 10001:10001, key 0600)"
+        assert line == f"{tier}: {home / 'containers' / tier} (9 files, owner 10001:10001, key 0600)"
     assert lines[-1] == f"docker-compose.yml mounts {home / 'containers'}/TIER read-only at /etc/tanklab"
     assert (home / "containers" / "plc" / "pki" / "private" / "plc.pem").stat().st_uid == 10001
 
