@@ -146,8 +146,9 @@ class Restart:
     """Wall-clock time of the SIGKILL (``time.time()``, to find the restart in the tier's log)."""
     phases_s: tuple[float, float, float] | None = None
     """PLC restarts, from its log: SIGKILL -> "warm restart from" (up's poll, the interpreter's
-    start, imports, config), -> "PLC server listening" (its OPC UA server), -> "resumed from the
-    plant's commands" (field link, the read before the first scan) [s]."""
+    start, imports, config), -> "pump commands held" (field link, the read of the plant and the
+    write that refreshes its watchdog, decision 0026), -> "PLC server listening" (its OPC UA
+    server, before the first scan) [s]."""
 
 
 @dataclass
@@ -556,7 +557,7 @@ async def run(
     return result
 
 
-PHASE_MARKS = ("warm restart from", "PLC server listening", "warm restart: resumed from")
+PHASE_MARKS = ("warm restart from", "warm restart: pump commands held", "PLC server listening")
 
 
 def _stamp(line: str) -> float | None:
@@ -721,14 +722,17 @@ def markdown(result: RestartsResult) -> str:
     ]
     phases = [r.phases_s for r in plc if r.phases_s is not None]
     if phases:
-        start, serve, link = ([p[i] for p in phases] for i in range(3))
+        start, link, serve = ([p[i] for p in phases] for i in range(3))
+        held = [a + b for a, b in zip(start, link, strict=True)]
         gap = [sum(p) for p in phases]
         lines += [
             "Where a PLC restart's gap goes (its log; median / max, s): from the SIGKILL to "
             f"\"warm restart from\" (`up`'s 1 s poll, the interpreter's start, imports, config) "
-            f'{_summary(start)}; its OPC UA server until "listening" {_summary(serve)}; the field link '
-            f"and the read of the plant before the first scan {_summary(link)}; total {_summary(gap)} "
-            f"({sum(g > 10.0 for g in gap)} of {len(gap)} longer than the plant's 10 s command timeout).",
+            f"{_summary(start)}; the field link, the read of the plant and the write-back that "
+            f'refreshes its watchdog ("pump commands held", decision 0026) {_summary(link)}; its OPC '
+            f'UA server until "listening", before the first scan, {_summary(serve)}; total '
+            f"{_summary(gap)}. The pumps were held {_summary(held)} after the SIGKILL "
+            f"({sum(h > 10.0 for h in held)} of {len(held)} later than the plant's 10 s command timeout).",
             "",
         ]
     thetas = [r.theta_change for r in plc if r.theta_change is not None]

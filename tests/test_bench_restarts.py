@@ -100,13 +100,14 @@ def test_a_plc_restart_gap_is_split_into_phases_from_its_log() -> None:
         [
             "2026-12-01 23:44:20,000 INFO plc_emulator.runtime: warm restart from x at scan 1, t = 0.0 s",
             "2026-12-01 23:44:33,100 INFO plc_emulator.runtime: warm restart from x at scan 157, t = 156.0 s",
-            "2026-12-01 23:44:37,000 INFO plc_emulator.server: PLC server listening at opc.tcp://h:1/tanklab/plc",
-            "2026-12-01 23:44:37,250 plc_emulator.runtime: warm restart: resumed from the plant",
+            "2026-12-01 23:44:33,350 plc_emulator.runtime: warm restart: resumed from the plant",
+            "2026-12-01 23:44:33,400 plc_emulator.runtime: warm restart: pump commands held (plant ...)",
+            "2026-12-01 23:44:37,300 INFO plc_emulator.server: PLC server listening at opc.tcp://h:1/tanklab/plc",
         ]
     )
     result = RestartsResult(restarts=[Restart("plc", 1, 9.0, 8.8, [], [], dict(ONE_EACH), killed_at=killed)])
     plc_phases(result, log)
     phases = result.restarts[0].phases_s
     assert phases is not None
-    assert [round(p, 3) for p in phases] == [4.6, 3.9, 0.25]
+    assert [round(p, 3) for p in phases] == [4.6, 0.3, 3.9]
     assert "PLC restart's gap" in markdown(result)
