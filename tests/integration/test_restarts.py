@@ -369,6 +369,9 @@ async def test_plc_warm_restart_after_the_pumps_were_stopped_resumes_from_the_la
         f"safe state off: P1 {old[-1]['P1_cmd']:.6g} -> {new[0]['P1_cmd']:.6g} m^3/s at the first scan; "
         f"T1 lowest {low:.4f} m (setpoint 0.40), {end:.4f} m 100 s after the restart"
     )
-    # The sag is the gap's (no pump while the PLC is away); from the restart on T1 climbs back
-    # (the loop's full recovery, within 400 s of model time, is test_failures.py's).
-    assert end > low + 0.015
+    # The sag is the gap's (no pump while the PLC is away); from the restart on T1 climbs back,
+    # more than half the way to its setpoint in 100 s (the loop's full recovery, within 400 s of
+    # model time, is test_failures.py's). How deep the sag is depends on how early the restarted
+    # PLC holds the pumps (decision 0026), not asserted here.
+    assert low < 0.40 - 0.005
+    assert end - low > 0.5 * (0.40 - low)
