@@ -33,6 +33,7 @@ from pathlib import Path
 
 from tanklab.errors import SecurityError
 from tanklab.home import SecurityHome
+from tanklab.pki import write_file
 
 __all__ = ["CONTAINER_GID", "CONTAINER_UID", "TIERS", "ContainerHome", "container_root", "lay_out"]
 
@@ -72,21 +73,8 @@ def _check_owner(uid: int, gid: int, euid: int) -> None:
 
 
 def _copy(src: Path, dst: Path, mode: int, uid: int, gid: int) -> Path:
-    """Copy ``src`` to ``dst`` atomically: created with ``mode`` (never wider), chowned, renamed."""
-    tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(src.read_bytes())
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        if (os.stat(tmp).st_uid, os.stat(tmp).st_gid) != (uid, gid):
-            os.chown(tmp, uid, gid)
-        os.replace(tmp, dst)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Copy ``src`` to ``dst`` atomically, created with ``mode`` (never wider) and owned by uid:gid."""
+    write_file(dst, src.read_bytes(), mode, owner=(uid, gid))
     return dst
 
 

@@ -76,6 +76,7 @@ __all__ = [
     "self_signed",
     "trust",
     "trusted_name",
+    "write_file",
 ]
 
 IDENTITIES = ("plant", "plc", "supervisor", "cli")
@@ -306,8 +307,9 @@ def _mkdir(path: Path) -> None:
     os.chmod(path, 0o700)
 
 
-def _write(path: Path, data: bytes, mode: int) -> None:
-    """Write atomically: a new file created with ``mode`` (never wider, even briefly), then renamed."""
+def write_file(path: Path, data: bytes, mode: int, *, owner: tuple[int, int] | None = None) -> None:
+    """Write atomically: a new file created with ``mode`` (never wider, even briefly), given to
+    ``owner`` (uid, gid) when one is given, then renamed over ``path``."""
     path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
@@ -317,6 +319,8 @@ def _write(path: Path, data: bytes, mode: int) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, mode)  # the umask may have narrowed it; never widened beyond mode
+        if owner is not None and (os.stat(tmp).st_uid, os.stat(tmp).st_gid) != owner:
+            os.chown(tmp, *owner)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -324,11 +328,11 @@ def _write(path: Path, data: bytes, mode: int) -> None:
 
 
 def _write_cert(path: Path, cert: x509.Certificate) -> None:
-    _write(path, cert.public_bytes(serialization.Encoding.DER), 0o644)
+    write_file(path, cert.public_bytes(serialization.Encoding.DER), 0o644)
 
 
 def _write_key(path: Path, key: rsa.RSAPrivateKey) -> None:
-    _write(path, _key_pem(key), 0o600)
+    write_file(path, _key_pem(key), 0o600)
 
 
 def read_certificate(file: Path) -> x509.Certificate:
@@ -462,8 +466,8 @@ def _write_crl(
     for entry in revoked:
         builder = builder.add_revoked_certificate(entry)
     crl = builder.sign(key, hashes.SHA256())
-    _write(pki.crl_file, crl.public_bytes(serialization.Encoding.DER), 0o644)
-    _write(pki.crl_pem, crl.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_file(pki.crl_file, crl.public_bytes(serialization.Encoding.DER), 0o644)
+    write_file(pki.crl_pem, crl.public_bytes(serialization.Encoding.PEM), 0o644)
 
 
 def init_pki(
@@ -505,7 +509,7 @@ def init_pki(
         ca = _make_ca(now, days)
         _write_key(pki.ca_key, ca[1])
         _write_cert(pki.ca_cert, ca[0])
-        _write(pki.ca_cert_pem, ca[0].public_bytes(serialization.Encoding.PEM), 0o644)
+        write_file(pki.ca_cert_pem, ca[0].public_bytes(serialization.Encoding.PEM), 0o644)
     else:
         ca = _read_ca(pki)
     start, end = _validity(now, days, None, None)
@@ -690,14 +694,14 @@ def migrate(pki: Pki) -> list[str]:
             os.chmod(new, 0o600)
     if pki.ca_cert.is_file() and not pki.ca_cert_pem.is_file():
         cert = read_certificate(pki.ca_cert)
-        _write(pki.ca_cert_pem, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+        write_file(pki.ca_cert_pem, cert.public_bytes(serialization.Encoding.PEM), 0o644)
         changes.append(f"{pki.ca_cert_pem}: wrote the CA certificate in PEM")
     if pki.crl_file.is_file() and not pki.crl_pem.is_file():
         try:
             crl = x509.load_der_x509_crl(pki.crl_file.read_bytes())
         except (OSError, ValueError):
             raise SecurityError(f"{pki.crl_file}: not a readable DER CRL") from None
-        _write(pki.crl_pem, crl.public_bytes(serialization.Encoding.PEM), 0o644)
+        write_file(pki.crl_pem, crl.public_bytes(serialization.Encoding.PEM), 0o644)
         changes.append(f"{pki.crl_pem}: wrote the CA's revocation list in PEM")
     return changes
 
