@@ -82,6 +82,18 @@ async def wait_until(
         await asyncio.sleep(poll_s)
 
 
+def wait_until_sync(
+    condition: Callable[[], bool], deadline_s: float, *, what: str = "condition", poll_s: float = 0.5
+) -> None:
+    """:func:`wait_until` for code with no event loop (a synchronous fixture): the same bound
+    and the same message."""
+    end = time.monotonic() + deadline_s
+    while not condition():
+        if time.monotonic() >= end:
+            raise AssertionError(f"timed out after {deadline_s} s waiting for {what}")
+        time.sleep(poll_s)
+
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -79,7 +79,7 @@ def test_the_targets_are_judged_on_every_restart() -> None:
 async def test_tankctl_pids_counts_the_processes_named_by_their_port() -> None:
     port = free_port()
     # A real process whose arguments read like a tier's (`... tankctl ... --port N`).
-    argv = [sys.executable, "-c", "import time; time.sleep(60)", "tankctl", "plc", "--port", str(port)]
+    argv = [sys.executable, "-c", "import signal; signal.pause()", "tankctl", "plc", "--port", str(port)]
     proc = subprocess.Popen(argv, text=True)
     try:
         await wait_until(lambda: tankctl_pids([port]).get(port) == [proc.pid], 10, what="the process seen")

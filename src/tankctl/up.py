@@ -588,7 +588,7 @@ class Stack:
                 )
             else:
                 lines.append(f"not saved: PLC retentive memory (no file {self.retain_file})")
-        if "supervisor" in self.tiers and self.tiers["supervisor"] in started:
+        if self.tiers.get("supervisor") in started:
             if self.supervisor_retain_file.exists():
                 lines.append(f"saved: supervisor mode in {self.supervisor_retain_file}")
             else:

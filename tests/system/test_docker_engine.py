@@ -57,7 +57,7 @@ from typing import Any
 import pytest
 import yaml
 
-from helpers import free_base_port, wait_until
+from helpers import free_base_port, wait_until, wait_until_sync
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
@@ -135,17 +135,15 @@ def _lock(path: Path, deadline_s: float) -> Iterator[None]:
     """An exclusive lock on ``path`` (another run on this machine shares the data root)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w") as f:
-        end = time.monotonic() + deadline_s
-        while True:
+
+        def locked() -> bool:
             try:
                 fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
             except BlockingIOError:
-                if time.monotonic() > end:
-                    raise AssertionError(
-                        f"{path}: still locked by another run after {deadline_s} s"
-                    ) from None
-                time.sleep(1.0)
+                return False
+            return True
+
+        wait_until_sync(locked, deadline_s, what=f"another run to release {path}", poll_s=1.0)
         try:
             yield
         finally:
@@ -193,15 +191,17 @@ def engine() -> Iterator[Engine]:
         env["DOCKER_HOST"] = f"unix://{sock}"
         eng = Engine(proc, run_dir, env)
         try:
-            deadline = time.monotonic() + 120
-            while not (sock.exists() and _answers(eng)):
+
+            def serving() -> bool:
                 assert proc.poll() is None, (
                     f"dockerd exited {proc.returncode}: {_tail(run_dir / 'dockerd.log')}"
                 )
-                assert time.monotonic() < deadline, (
-                    f"dockerd not up in 120 s: {_tail(run_dir / 'dockerd.log')}"
-                )
-                time.sleep(0.5)
+                return sock.exists() and _answers(eng)
+
+            try:
+                wait_until_sync(serving, 120, what=f"dockerd at {sock}")
+            except AssertionError as e:
+                raise AssertionError(f"{e}: {_tail(run_dir / 'dockerd.log')}") from None
             yield eng
         finally:
             _stop_engine(proc)
