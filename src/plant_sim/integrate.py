@@ -6,8 +6,8 @@ as a PLC output is held between scans), then project the levels into [0, Hmax] w
 
 - :func:`step_rk4` runs classical RK4 sub-steps on Python floats through the fast path
   (:mod:`plant_sim.kernel`: the reference right-hand side
-  :meth:`~plant_sim.models.HeldRhs.derivative` traced into straight-line code, bit-identical to
-  it; :func:`rk4_step` is the one RK4 step for both). The coarse sub-step is the
+  :meth:`~plant_sim.models.HeldRhs.derivative` and the RK4 step :func:`rk4_step` traced into
+  straight-line code, bit-identical to them). The coarse sub-step is the
   plant's own (:func:`rk4_substep_s`: ``min(1 s, 0.5 / lambda_smooth)`` with ``lambda_smooth`` a
   bound on every eigenvalue of the Jacobian at states at least ``SMOOTH_ZONE_M`` from a
   non-smooth point, so every mode a coarse step meets is integrated stably and accurately),
@@ -79,12 +79,13 @@ def event_substep_s(net: TankNetwork) -> float:
     return EVENT_SUBSTEP_S if rate <= 0.0 else min(EVENT_SUBSTEP_S, RK4_STABLE_H_LAMBDA / rate)
 
 
-def rk4_step(rhs: RhsFn, rhs_at: RhsAtFn, y: list[float], h: float) -> tuple[list[float], bool]:
-    """One classical RK4 step of ``h`` [s] from ``y``; also whether any stage spilled over a top.
+def rk4_step(rhs: RhsFn, rhs_at: RhsAtFn, y: list[float], h: float) -> tuple[list[float], float]:
+    """One classical RK4 step of ``h`` [s] from ``y``, and the stages' summed dV_spilled/dt [m^3/s].
 
     ``k1 = f(y)``, ``k2 = f(y + h/2 k1)``, ``k3 = f(y + h/2 k2)``, ``k4 = f(y + h k3)`` (``rhs_at``
-    forms the stage point), then ``y + h/6 (k1 + 2 (k2 + k3) + k4)`` entry by entry. A stage
-    spilled when its last entry, dV_spilled/dt, is positive.
+    forms the stage point), then ``y + h/6 (k1 + 2 (k2 + k3) + k4)`` entry by entry. Spill rates
+    are never negative, so the sum is positive exactly when a stage spilled over a top. The fast
+    path runs this step traced (:func:`plant_sim.kernel.bind`).
     """
     hh = 0.5 * h
     k1 = rhs(y)
@@ -94,7 +95,7 @@ def rk4_step(rhs: RhsFn, rhs_at: RhsAtFn, y: list[float], h: float) -> tuple[lis
     h6 = h / 6.0
     stages = zip(y, k1, k2, k3, k4, strict=True)
     y_new = [a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4 in stages]
-    return y_new, (k1[-1] > 0.0 or k2[-1] > 0.0 or k3[-1] > 0.0 or k4[-1] > 0.0)
+    return y_new, k1[-1] + k2[-1] + k3[-1] + k4[-1]
 
 
 def reference_rhs(held: HeldRhs) -> tuple[RhsFn, RhsAtFn]:
@@ -202,15 +203,14 @@ def step_rk4(
     if n_sub == 0:
         return x.copy()
     f = HeldRhs(net, u)
-    rhs, rhs_at = bind(f)
+    rk4 = bind(f, rk4_step).step
     hmax = f.hmax
-    rk4 = rk4_step
     y = x.tolist()
     for _ in range(n_sub):
         # One check of both ends decides, as first checking the start alone and then both would:
         # a start near an event fails either way (the coarse step is then wasted, rarely).
-        y_new, spilled = rk4(rhs, rhs_at, y, h)
-        if n_fine > 1 and (spilled or _near_event(f, y, y_new)):
+        y_new, spilled = rk4(y, h)
+        if n_fine > 1 and (spilled > 0.0 or _near_event(f, y, y_new)):
             steps, hs = n_fine, h / n_fine
         else:
             steps, hs = 0, h
@@ -218,7 +218,7 @@ def step_rk4(
             if _outside(y, hmax):
                 y = net.project(np.array(y)).tolist()
         for _ in range(steps):
-            y = rk4(rhs, rhs_at, y, hs)[0]
+            y = rk4(y, hs)[0]
             if _outside(y, hmax):
                 y = net.project(np.array(y)).tolist()
     if not math.isfinite(sum(y)):  # NaN or inf anywhere makes the sum non-finite

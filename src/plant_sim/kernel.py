@@ -19,7 +19,9 @@ for bit (tests/plant_sim/test_kernel.py checks that on every shipped config).
 
 ``rhs(x)`` is dx/dt at ``x``; ``rhs_at(y, k, c)`` is dx/dt at the RK4 stage point ``y + c k``
 (entries formed as ``y[i] + c * k[i]``, the integrator's own expression, inside the kernel
-instead of as a new list). ``print(kernel_for(held).source)`` shows the code.
+instead of as a new list). ``step(y, h)`` is the integrator's step (``plant_sim.integrate.rk4_step``)
+traced the same way: its calls of the right-hand side kept, its weighted sums unrolled.
+``print(kernel_for(held, rk4_step).source)`` shows the code.
 """
 
 from __future__ import annotations
@@ -29,10 +31,11 @@ import functools
 import inspect
 import linecache
 import math
+import re
 import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from plant_sim import models
 from plant_sim.models import LAWS, HeldRhs, Laws
@@ -41,6 +44,10 @@ RhsFn = Callable[[list[float]], list[float]]
 """``f(x) -> dx/dt`` on Python floats (the full state; only levels and lagged pump flows are read)."""
 RhsAtFn = Callable[[list[float], list[float], float], list[float]]
 """``f(y, k, c) -> dx/dt`` at the stage point ``y[i] + c * k[i]``."""
+StepFn = Callable[[list[float], float], tuple[list[float], float]]
+"""``step(y, h) -> (y_new, stages' summed spill rate)``: one integrator step of ``h`` [s]."""
+StepReference = Callable[[RhsFn, RhsAtFn, list[float], float], tuple[list[float], float]]
+"""An integrator step written on floats (``plant_sim.integrate.rk4_step``), traced into the kernel."""
 
 _KERNELS_KEPT = 64
 """Layouts kept compiled per network (openings toggled through many layouts: start over)."""
@@ -133,9 +140,20 @@ def _inline(fn: Callable[..., Any], args: list[str]) -> str:
     params, expr = _law_expression(fn)
     given = dict(zip(params, args, strict=True))
 
+    constants = {k: v for k, v in vars(models).items() if type(v) is float}
+
     class _Substitute(ast.NodeTransformer):
         def visit_Name(self, node: ast.Name) -> ast.expr:
-            return ast.parse(given[node.id], mode="eval").body if node.id in given else node
+            if node.id in given:
+                return ast.parse(given[node.id], mode="eval").body
+            if node.id in constants:  # the module's constants (H_LAMINAR_M, ...) as literals
+                return ast.parse(_lit(constants[node.id]), mode="eval").body
+            return node
+
+        def visit_Attribute(self, node: ast.Attribute) -> ast.expr:
+            if isinstance(node.value, ast.Name) and node.value.id == "math":
+                return ast.Name(id=f"math_{node.attr}", ctx=ast.Load())  # one lookup, not two
+            return self.generic_visit(node)  # type: ignore[return-value]
 
     return ast.unparse(_Substitute().visit(ast.parse(ast.unparse(expr), mode="eval")).body)
 
@@ -153,6 +171,34 @@ def _tracing_laws(tape: _Tape) -> Laws:
         fade=inlined(LAWS.fade),
         spill=inlined(LAWS.spill),
     )
+
+
+_TEMP = re.compile(r"\bt\d+\b")
+
+
+def _fold(lines: list[str]) -> list[str]:
+    """Substitute every temporary used exactly once into its one use, parenthesised.
+
+    The recorded operations are pure float arithmetic, so evaluating one where its value is used
+    instead of one line earlier computes the same bits; it only saves a store and a load per
+    operation (the RK4 sum becomes one expression per entry).
+    """
+    uses: dict[str, int] = {}
+    for line in lines:
+        rhs = line.split(" = ", 1)[1] if line.startswith("t") else line
+        for name in _TEMP.findall(rhs):
+            uses[name] = uses.get(name, 0) + 1
+    pending: dict[str, str] = {}
+    out = []
+    for line in lines:
+        target, expr = line.split(" = ", 1) if line.startswith("t") else ("", line)
+        expr = _TEMP.sub(lambda m: f"({pending.pop(m.group())})" if m.group() in pending else m.group(), expr)
+        if target and uses.get(target, 0) == 1:
+            pending[target] = expr
+        else:
+            out.append(f"{target} = {expr}" if target else expr)
+    assert not pending, "every temporary is used"
+    return out
 
 
 def layout(held: HeldRhs) -> tuple[object, ...]:
@@ -181,19 +227,29 @@ def _part_values(held: HeldRhs) -> list[float]:
     ]
 
 
+class Bound(NamedTuple):
+    """A kernel with one input set's held values: the right-hand side and the traced step (a
+    named tuple: built every step, at a tuple's cost)."""
+
+    rhs: RhsFn
+    rhs_at: RhsAtFn
+    step: StepFn
+
+
 @dataclass(frozen=True)
 class Kernel:
-    """A compiled kernel of one layout: ``make(*held_values(held)) -> (rhs, rhs_at)``."""
+    """A compiled kernel of one layout: ``make(*held_values(held)) -> (rhs, rhs_at, step)``."""
 
     source: str
-    make: Callable[..., tuple[RhsFn, RhsAtFn]]
+    make: Callable[..., tuple[RhsFn, RhsAtFn, StepFn]]
 
 
 def _trace(held: HeldRhs) -> tuple[list[str], list[str], list[str], list[int]]:
     """Run the reference on symbols: (argument names, body lines, read names, their x indices)."""
     tape = _Tape()
     sym: Any = HeldRhs.__new__(HeldRhs)  # the same layout and constants, the held values as arguments
-    sym.__dict__.update(held.__dict__)
+    for name in HeldRhs.__slots__:
+        setattr(sym, name, getattr(held, name))
     args: list[str] = []
 
     def arg(name: str) -> _Sym:
@@ -214,21 +270,50 @@ def _trace(held: HeldRhs) -> tuple[list[str], list[str], list[str], list[int]]:
     for name, i in zip(reads, index, strict=True):
         x[i] = _Sym(name, tape)
     out = sym.derivative(x, _tracing_laws(tape))
-    body = [*tape.lines, f"return [{', '.join(_arg(v) for v in out)}]"]
+    body = _fold([*tape.lines, f"return [{', '.join(_arg(v) for v in out)}]"])
     return args, body, reads, index
 
 
-def kernel_for(held: HeldRhs) -> Kernel:
-    """The compiled kernel of ``held``'s layout (traced once per layout, cached on the network)."""
+def _trace_step(step: StepReference, m: int) -> list[str]:
+    """Run the integrator step on symbols: ``y`` and ``h`` traced, ``rhs`` and ``rhs_at`` recorded
+    as calls returning traced lists (their entries read by index). Returns the body lines."""
+    tape = _Tape()
+    names: dict[int, str] = {}
+    y = [_Sym(f"y[{i}]", tape) for i in range(m)]
+
+    def result(expr: str) -> list[_Sym]:
+        k = tape.emit(expr)
+        out = [_Sym(f"{k.name}[{i}]", tape) for i in range(m)]
+        names[id(out)] = k.name
+        return out
+
+    def rhs(v: list[_Sym]) -> list[_Sym]:
+        assert v is y, "the step evaluates rhs at its own state"
+        return result("rhs(y)")
+
+    def rhs_at(v: list[_Sym], k: list[_Sym], c: object) -> list[_Sym]:
+        assert v is y, "the step forms stage points from its own state"
+        return result(f"rhs_at(y, {names[id(k)]}, {_arg(c)})")
+
+    y_new, spill = step(rhs, rhs_at, y, _Sym("h", tape))  # type: ignore[arg-type]
+    return _fold([*tape.lines, f"return [{', '.join(_arg(v) for v in y_new)}], {_arg(spill)}"])
+
+
+def kernel_for(held: HeldRhs, step: StepReference) -> Kernel:
+    """The compiled kernel of ``held``'s layout with ``step`` traced (once per layout, cached on
+    the network)."""
     cache = held.net._kernels
-    key = layout(held)
+    key = (layout(held), step)
     found = cache.get(key)
     if isinstance(found, Kernel):
         return found
     args, body, reads, index = _trace(held)
+    step_body = _trace_step(step, held.n + held.p + 4)
     pad = " " * 8
     lines = [
-        f'"""Right-hand side traced from plant_sim.models.HeldRhs.derivative (layout {key})."""',
+        f'"""Traced from plant_sim.models.HeldRhs.derivative and {step.__module__}.{step.__qualname__}',
+        "",
+        f'Layout (outflows, leaks, drains, links, lagged pumps): {key[0]}."""',
         "",
         f"def make({', '.join(args)}):",
         "    def rhs(x):",
@@ -239,12 +324,16 @@ def kernel_for(held: HeldRhs) -> Kernel:
         *(f"{pad}{v} = y[{i}] + c * k[{i}]" for v, i in zip(reads, index, strict=True)),
         *(pad + b for b in body),
         "",
-        "    return rhs, rhs_at",
+        "    def step(y, h):",
+        *(pad + b for b in step_body),
+        "",
+        "    return rhs, rhs_at, step",
         "",
     ]
     source = "\n".join(lines)
     filename = f"<plant_sim kernel {id(held.net):x} {len(cache)}>"
-    namespace: dict[str, object] = dict(vars(models))  # the laws' own names: math, H_LAMINAR_M, ...
+    namespace: dict[str, object] = dict(vars(models))  # the laws' own names
+    namespace.update({f"math_{name}": getattr(math, name) for name in dir(math) if not name.startswith("_")})
     exec(compile(source, filename, "exec"), namespace)  # traced from the reference (module docstring)
     linecache.cache[filename] = (len(source), None, source.splitlines(keepends=True), filename)
     if len(cache) >= _KERNELS_KEPT:
@@ -253,20 +342,20 @@ def kernel_for(held: HeldRhs) -> Kernel:
     return kernel
 
 
-def bind(held: HeldRhs) -> tuple[RhsFn, RhsAtFn]:
-    """``(rhs, rhs_at)`` of ``held``: its layout's kernel with its held values bound.
+def bind(held: HeldRhs, step: StepReference) -> Bound:
+    """``held``'s layout's kernel (with ``step`` traced) bound to its held values.
 
     The kernel is remembered on the openings' part of ``held`` (reused while the openings and
     disturbances are unchanged, i.e. most steps), so a step only binds the new pump flows.
     """
     if held.direct_pumps:
         raise ValueError("bind() needs the pumps' own flows (no pump_flows_m3_s override)")
-    part_cache = held.part.cache
-    kernel = part_cache.get("kernel")
-    if not isinstance(kernel, Kernel):
-        kernel = part_cache["kernel"] = kernel_for(held)
-        part_cache["values"] = _part_values(held)
-    values: list[float] = part_cache["values"]  # type: ignore[assignment]
+    found = held.part.cache.get(step)
+    if found is None:
+        found = held.part.cache[step] = (kernel_for(held, step).make, _part_values(held))
+    make, values = found
     if held.lagged:
-        return kernel.make(*held.inflow, held.v_in0, *[target for _, _, target, _ in held.lagged], *values)
-    return kernel.make(*held.inflow, held.v_in0, *values)
+        return Bound._make(
+            make(*held.inflow, held.v_in0, *[target for _, _, target, _ in held.lagged], *values)
+        )
+    return Bound._make(make(*held.inflow, held.v_in0, *values))

@@ -453,8 +453,9 @@ class _HeldPart:
     """Open valves between tanks (valve, upstream, downstream, s * c [m^2.5/s])."""
     leaks: list[tuple[int, float]]
     """Open leaks (tank, s * c [m^2.5/s])."""
-    cache: dict[str, object] = field(default_factory=dict, compare=False)
-    """The compiled kernel of this part's layout (filled by ``plant_sim.kernel``)."""
+    cache: dict[object, tuple[Any, list[float]]] = field(default_factory=dict, compare=False)
+    """The compiled kernel of this part's layout by integrator step, and its arguments from this
+    part (filled by ``plant_sim.kernel.bind``)."""
 
 
 def _held_part(net: TankNetwork, u: PlantInputs) -> _HeldPart:
@@ -522,6 +523,24 @@ class HeldRhs:
     pump_flows_m3_s : (p,) pump flows given directly [m^3/s], every pump held at its value with
         no lag (``plant_sim.linearize.level_rhs``); None: the commands' flows through the pump map.
     """
+
+    __slots__ = (
+        "direct_pumps",
+        "drains",
+        "held_pumps",
+        "hmax",
+        "inflow",
+        "inv_area",
+        "lagged",
+        "leaks",
+        "links",
+        "n",
+        "net",
+        "outflows",
+        "p",
+        "part",
+        "v_in0",
+    )
 
     def __init__(
         self, net: TankNetwork, u: PlantInputs, pump_flows_m3_s: Sequence[float] | None = None

@@ -86,7 +86,8 @@ def test_kernel_equals_the_reference_bit_for_bit(key: tuple[str, bool], data: st
     net = NETS[key]
     u, x, k, c = data.draw(_case(net))
     f = HeldRhs(net, u)
-    rhs, rhs_at = bind(f)
+    bound = bind(f, rk4_step)
+    rhs, rhs_at = bound.rhs, bound.rhs_at
     assert _bits(rhs(x)) == _bits(f(x))
     assert _bits(rhs(x)) == _bits(net.rhs(0.0, np.array(x), u).tolist())
     # a stage point, formed inside rhs_at as the integrator forms it as a list
@@ -98,16 +99,17 @@ def test_kernel_equals_the_reference_bit_for_bit(key: tuple[str, bool], data: st
 @pytest.mark.parametrize("key", list(NETS), ids=IDS)
 @settings(max_examples=60, deadline=None)
 @given(data=st.data(), h=st.sampled_from([0.05, 0.5, 0.716, 1.0]) | st.floats(1e-3, 2.5))
-def test_rk4_step_on_the_kernel_equals_it_on_the_reference(
+def test_traced_rk4_step_equals_it_on_the_reference(
     key: tuple[str, bool], data: st.DataObject, h: float
 ) -> None:
     net = NETS[key]
     u, x, _k, _c = data.draw(_case(net))
     f = HeldRhs(net, u)
-    y_new, spilled = rk4_step(*bind(f), x, h)
+    bound = bind(f, rk4_step)
     y_ref, spilled_ref = rk4_step(*reference_rhs(f), x, h)
-    assert _bits(y_new) == _bits(y_ref)
-    assert spilled == spilled_ref
+    for y_new, spilled in (bound.step(x, h), rk4_step(bound.rhs, bound.rhs_at, x, h)):
+        assert _bits(y_new) == _bits(y_ref)
+        assert _bits([spilled]) == _bits([spilled_ref])
 
 
 def test_kernel_is_straight_line_traced_code_and_cached() -> None:
@@ -115,17 +117,18 @@ def test_kernel_is_straight_line_traced_code_and_cached() -> None:
     u = PlantInputs(
         np.full(net.n_pumps, 1e-5), np.ones(net.n_valves), np.zeros(net.n_tanks), np.zeros(net.n_tanks)
     )
-    a, b = kernel_for(HeldRhs(net, u)), kernel_for(HeldRhs(net, u))
+    a, b = kernel_for(HeldRhs(net, u), rk4_step), kernel_for(HeldRhs(net, u), rk4_step)
     assert a is b  # compiled once per layout, not per step
     src = a.source
     assert "HeldRhs.derivative" in src and "def rhs(x):" in src and "def rhs_at(y, k, c):" in src
+    assert "def step(y, h):" in src
     body = src.split('"""')[-1]
     assert "for " not in body and "while " not in body  # straight-line: the loops ran while tracing
-    assert "math.sqrt(" in body  # the laws, inlined from plant_sim.models
+    assert "math_sqrt(" in body  # the laws, inlined from plant_sim.models
     # closing a valve changes the layout: new code, the old kept in the network's cache
     shut = PlantInputs(u.pump_commands, np.zeros(net.n_valves), u.leak_openings, u.disturbances_m3_s)
-    assert kernel_for(HeldRhs(net, shut)) is not a
-    assert kernel_for(HeldRhs(net, u)) is a
+    assert kernel_for(HeldRhs(net, shut), rk4_step) is not a
+    assert kernel_for(HeldRhs(net, u), rk4_step) is a
 
 
 def test_kernel_refuses_pump_flows_given_directly() -> None:
@@ -134,4 +137,4 @@ def test_kernel_refuses_pump_flows_given_directly() -> None:
     n = net.n_tanks
     u = PlantInputs(np.zeros(net.n_pumps), np.ones(net.n_valves), np.zeros(n), np.zeros(n))
     with pytest.raises(ValueError, match="pump_flows_m3_s"):
-        bind(HeldRhs(net, u, pump_flows_m3_s=[1e-5] * net.n_pumps))
+        bind(HeldRhs(net, u, pump_flows_m3_s=[1e-5] * net.n_pumps), rk4_step)
