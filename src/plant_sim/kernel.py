@@ -80,6 +80,21 @@ def _arg(v: object) -> str:
     raise TypeError(f"the reference used a {type(v).__name__} where a float or a traced value was expected")
 
 
+_SymOp = Callable[["_Sym", object], "_Sym"]
+
+
+def _binary(op: str) -> tuple[_SymOp, _SymOp]:
+    """``a op b`` recorded, as the operator and its reflected form (``2.0 * x`` keeps its order)."""
+
+    def forward(self: _Sym, other: object) -> _Sym:
+        return self.tape.emit(f"{_arg(self)} {op} {_arg(other)}")
+
+    def reflected(self: _Sym, other: object) -> _Sym:
+        return self.tape.emit(f"{_arg(other)} {op} {_arg(self)}")
+
+    return forward, reflected
+
+
 class _Sym:
     """A traced float: arithmetic on it records an assignment instead of computing."""
 
@@ -89,32 +104,10 @@ class _Sym:
         self.name = name
         self.tape = tape
 
-    def _op(self, a: object, op: str, b: object) -> _Sym:
-        return self.tape.emit(f"{_arg(a)} {op} {_arg(b)}")
-
-    def __add__(self, o: object) -> _Sym:
-        return self._op(self, "+", o)
-
-    def __radd__(self, o: object) -> _Sym:
-        return self._op(o, "+", self)
-
-    def __sub__(self, o: object) -> _Sym:
-        return self._op(self, "-", o)
-
-    def __rsub__(self, o: object) -> _Sym:
-        return self._op(o, "-", self)
-
-    def __mul__(self, o: object) -> _Sym:
-        return self._op(self, "*", o)
-
-    def __rmul__(self, o: object) -> _Sym:
-        return self._op(o, "*", self)
-
-    def __truediv__(self, o: object) -> _Sym:
-        return self._op(self, "/", o)
-
-    def __rtruediv__(self, o: object) -> _Sym:
-        return self._op(o, "/", self)
+    __add__, __radd__ = _binary("+")
+    __sub__, __rsub__ = _binary("-")
+    __mul__, __rmul__ = _binary("*")
+    __truediv__, __rtruediv__ = _binary("/")
 
     def __neg__(self) -> _Sym:
         return self.tape.emit(f"-{self.name}")
