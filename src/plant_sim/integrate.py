@@ -4,12 +4,10 @@ Both advance ``x' = f(t, x, u)`` over any ``dt`` with the inputs ``u`` held (zer
 as a PLC output is held between scans), then project the levels into [0, Hmax] with
 :meth:`TankNetwork.project`, which keeps the volume balance exact.
 
-- :func:`step_rk4` runs classical RK4 sub-steps on Python floats
-  (:class:`~plant_sim.models.ScalarRhs`, ten times faster than numpy on a few states; a test
-  checks it against the numpy right-hand side). Both the right-hand side and the RK4 step are
-  straight-line code generated per network (:func:`~plant_sim.models._generate_rhs`,
-  :func:`rk4_step_for`) and bit-identical to their loop forms (``ScalarRhs.generic``,
-  :func:`_rk4_reference`; tests/plant_sim/test_generated_rhs.py). The coarse sub-step is the
+- :func:`step_rk4` runs classical RK4 sub-steps on Python floats through the fast path
+  (:mod:`plant_sim.kernel`: the reference right-hand side
+  :meth:`~plant_sim.models.HeldRhs.derivative` and the RK4 step :func:`rk4_step` traced into
+  straight-line code, bit-identical to them). The coarse sub-step is the
   plant's own (:func:`rk4_substep_s`: ``min(1 s, 0.5 / lambda_smooth)`` with ``lambda_smooth`` a
   bound on every eigenvalue of the Jacobian at states at least ``SMOOTH_ZONE_M`` from a
   non-smooth point, so every mode a coarse step meets is integrated stably and accurately),
@@ -27,15 +25,14 @@ as a PLC output is held between scans), then project the levels into [0, Hmax] w
 
 from __future__ import annotations
 
-import functools
-import linecache
 import math
-from collections.abc import Callable
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from plant_sim.models import FloatArray, PlantInputs, RhsAtFn, RhsFn, ScalarRhs, TankNetwork
+from plant_sim.kernel import RhsAtFn, RhsFn, bind
+from plant_sim.models import FloatArray, HeldRhs, PlantInputs, TankNetwork
+from plant_sim.stiffness import fastest_rate_1_s, rate_bound_1_s
 from tanklab.errors import IntegrationError
 
 RK4_STABLE_H_LAMBDA = 2.0
@@ -63,88 +60,63 @@ SMOOTH_ZONE_M = 5e-3
 def rk4_substep_s(net: TankNetwork) -> float:
     """The automatic coarse RK4 sub-step of a plant [s]: ``min(MAX_SUBSTEP_S, 0.5 / lambda_smooth)``.
 
-    ``lambda_smooth`` (:meth:`~plant_sim.models.TankNetwork.rate_bound_1_s` at ``SMOOTH_ZONE_M``)
+    ``lambda_smooth`` (:func:`~plant_sim.stiffness.rate_bound_1_s` at ``SMOOTH_ZONE_M``)
     bounds every eigenvalue of the Jacobian at the states where coarse steps are kept: a step
     whose start or end comes within ``SMOOTH_ZONE_M`` of a non-smooth point (an empty tank, a head
     across a valve near zero, where the orifice law is steepest) is redone in
     :func:`event_substep_s` steps. So every mode a coarse step meets is integrated stably and
     accurately (:data:`RK4_COARSE_H_LAMBDA`).
     """
-    rate = net.rate_bound_1_s(SMOOTH_ZONE_M)
+    rate = rate_bound_1_s(net, SMOOTH_ZONE_M)
     return MAX_SUBSTEP_S if rate <= 0.0 else min(MAX_SUBSTEP_S, RK4_COARSE_H_LAMBDA / rate)
 
 
 def event_substep_s(net: TankNetwork) -> float:
     """The longest fine sub-step near a non-smooth point [s]: ``EVENT_SUBSTEP_S``, shortened to
     ``2.0 / lambda_max`` if the plant's fastest mode anywhere
-    (:attr:`~plant_sim.models.TankNetwork.fastest_rate_1_s`, the laminar band included) needs it."""
-    rate = net.fastest_rate_1_s
+    (:func:`~plant_sim.stiffness.fastest_rate_1_s`, the laminar band included) needs it."""
+    rate = fastest_rate_1_s(net)
     return EVENT_SUBSTEP_S if rate <= 0.0 else min(EVENT_SUBSTEP_S, RK4_STABLE_H_LAMBDA / rate)
 
 
-Rk4Step = Callable[[RhsFn, RhsAtFn, list[float], float], tuple[list[float], bool]]
+def rk4_step(rhs: RhsFn, rhs_at: RhsAtFn, y: list[float], h: float) -> tuple[list[float], float]:
+    """One classical RK4 step of ``h`` [s] from ``y``, and the stages' summed dV_spilled/dt [m^3/s].
 
-
-def _rk4_reference(f: ScalarRhs, y: list[float], h: float) -> tuple[list[float], bool]:
-    """One classical RK4 step of ``h`` [s]; also whether any stage spilled over a top.
-
-    The loop form of :func:`rk4_step_for`'s generated code (its oracle in the tests). The
-    right-hand side reads levels and pump flows only, so the stage points carry just those.
+    ``k1 = f(y)``, ``k2 = f(y + h/2 k1)``, ``k3 = f(y + h/2 k2)``, ``k4 = f(y + h k3)`` (``rhs_at``
+    forms the stage point), then ``y + h/6 (k1 + 2 (k2 + k3) + k4)`` entry by entry. Spill rates
+    are never negative, so the sum is positive exactly when a stage spilled over a top. The fast
+    path runs this step traced (:func:`plant_sim.kernel.bind`).
     """
     hh = 0.5 * h
-    ys = y[: f.n + f.p]
-    k1 = f.generic(y)
-    k2 = f.generic([a + hh * b for a, b in zip(ys, k1, strict=False)])
-    k3 = f.generic([a + hh * b for a, b in zip(ys, k2, strict=False)])
-    k4 = f.generic([a + h * b for a, b in zip(ys, k3, strict=False)])
+    k1 = rhs(y)
+    k2 = rhs_at(y, k1, hh)
+    k3 = rhs_at(y, k2, hh)
+    k4 = rhs_at(y, k3, h)
     h6 = h / 6.0
-    out = [a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4, strict=True)]
-    return out, (k1[-1] > 0.0 or k2[-1] > 0.0 or k3[-1] > 0.0 or k4[-1] > 0.0)
+    stages = zip(y, k1, k2, k3, k4, strict=True)
+    y_new = [a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4 in stages]
+    return y_new, k1[-1] + k2[-1] + k3[-1] + k4[-1]
 
 
-@functools.cache
-def rk4_step_for(m: int) -> Rk4Step:
-    """A classical RK4 step for a state of ``m`` floats, generated with the sums unrolled.
+def reference_rhs(held: HeldRhs) -> tuple[RhsFn, RhsAtFn]:
+    """``(rhs, rhs_at)`` of the reference itself (what the fast path's kernel is tested against)."""
+    m = held.n + held.p
 
-    ``step(rhs, rhs_at, y, h) -> (y_new, spilled)``: the stages ``k1 = rhs(y)``,
-    ``k2 = rhs_at(y, k1, h/2)``, ``k3 = rhs_at(y, k2, h/2)``, ``k4 = rhs_at(y, k3, h)`` (the
-    stage points are formed inside the generated right-hand side, no list per stage), then
-    ``y + h/6 (k1 + 2 (k2 + k3) + k4)`` entry by entry, the same operations in the same order as
-    :func:`_rk4_reference` (bit-identical; tests/plant_sim/test_generated_rhs.py). ``spilled``:
-    whether any stage spilled over a top (its last entry, dV_spilled/dt, positive). Print
-    ``rk4_step_for(m).source`` to read it.
-    """
-    terms = [f"        y[{i}] + h6 * (k1[{i}] + 2.0 * (k2[{i}] + k3[{i}]) + k4[{i}])," for i in range(m)]
-    spill = " or ".join(f"k{i}[{m - 1}] > 0.0" for i in (1, 2, 3, 4))
-    source = "\n".join(
-        [
-            f'"""Classical RK4 step on {m} floats, generated by plant_sim.integrate.rk4_step_for."""',
-            "",
-            "",
-            "def rk4_step(rhs, rhs_at, y, h):",
-            "    hh = 0.5 * h",
-            "    k1 = rhs(y)",
-            "    k2 = rhs_at(y, k1, hh)",
-            "    k3 = rhs_at(y, k2, hh)",
-            "    k4 = rhs_at(y, k3, h)",
-            "    h6 = h / 6.0",
-            "    y_new = [",
-            *terms,
-            "    ]",
-            f"    return y_new, ({spill})",
-            "",
-        ]
-    )
-    filename = f"<plant_sim generated rk4 step {m}>"
-    namespace: dict[str, object] = {}
-    exec(compile(source, filename, "exec"), namespace)  # our own generated source
-    linecache.cache[filename] = (len(source), None, source.splitlines(keepends=True), filename)
-    step = namespace["rk4_step"]
-    step.source = source  # type: ignore[attr-defined]
-    return step  # type: ignore[return-value]
+    def rhs_at(y: list[float], k: list[float], c: float) -> list[float]:
+        return held([a + c * b for a, b in zip(y[:m], k, strict=False)])
+
+    return held, rhs_at
 
 
-def _near_event(f: ScalarRhs, a: list[float], b: list[float]) -> bool:
+def _outside(y: list[float], hmax: list[float]) -> bool:
+    """Whether a level is below 0 or above its Hmax (then :meth:`TankNetwork.project`)."""
+    for h, top in zip(y, hmax, strict=False):  # noqa: SIM110 (any() of a generator: a frame per sub-step)
+        if h < 0.0 or h > top:
+            return True
+    return False
+
+
+def _near_event(f: HeldRhs, a: list[float], b: list[float]) -> bool:
     """Whether a step from ``a`` to ``b`` comes near a point where the right-hand side is not smooth.
 
     Those points: an empty tank (the orifice law's square root, its laminar continuation, an
@@ -156,7 +128,7 @@ def _near_event(f: ScalarRhs, a: list[float], b: list[float]) -> bool:
     for i, top in enumerate(f.hmax):
         if a[i] < z or b[i] < z or a[i] > top - z or b[i] > top - z:
             return True
-    for up, down, _cs in f.links:
+    for _k, up, down, _cs in f.links:
         da = a[up] - a[down]
         db = b[up] - b[down]
         if -z < da < z or -z < db < z or (da > 0.0) != (db > 0.0):
@@ -230,24 +202,24 @@ def step_rk4(
     n_sub, h, n_fine = _step_plan(net, dt_s, max_substep_s)
     if n_sub == 0:
         return x.copy()
-    f = ScalarRhs(net, u)
-    rhs, rhs_at, outside = f.fn, f.fn_at, f.code.outside
-    rk4 = rk4_step_for(len(x))
+    f = HeldRhs(net, u)
+    rk4 = bind(f, rk4_step).step
+    hmax = f.hmax
     y = x.tolist()
     for _ in range(n_sub):
         # One check of both ends decides, as first checking the start alone and then both would:
         # a start near an event fails either way (the coarse step is then wasted, rarely).
-        y_new, spilled = rk4(rhs, rhs_at, y, h)
-        if n_fine > 1 and (spilled or _near_event(f, y, y_new)):
+        y_new, spilled = rk4(y, h)
+        if n_fine > 1 and (spilled > 0.0 or _near_event(f, y, y_new)):
             steps, hs = n_fine, h / n_fine
         else:
             steps, hs = 0, h
             y = y_new
-            if outside(y):
+            if _outside(y, hmax):
                 y = net.project(np.array(y)).tolist()
         for _ in range(steps):
-            y = rk4(rhs, rhs_at, y, hs)[0]
-            if outside(y):
+            y = rk4(y, hs)[0]
+            if _outside(y, hmax):
                 y = net.project(np.array(y)).tolist()
     if not math.isfinite(sum(y)):  # NaN or inf anywhere makes the sum non-finite
         raise IntegrationError(f"RK4 produced a non-finite state at t = {t_s + dt_s:.6g} s")
@@ -277,10 +249,11 @@ def step_adaptive(
     if dt_s == 0:
         return x.copy()
     # solve_ivp shrinks its step forever on a non-finite derivative: refuse it up front.
-    if not np.all(np.isfinite(net.rhs(t_s, x, u))):
+    f = HeldRhs(net, u)
+    if not np.all(np.isfinite(f(x.tolist()))):
         raise IntegrationError(f"non-finite state derivative at t = {t_s:.6g} s (inputs or state not finite)")
     sol = solve_ivp(
-        lambda t, y: net.rhs(t, y, u),
+        lambda t, y: np.array(f(y.tolist())),
         (t_s, t_s + dt_s),
         x,
         method=method,

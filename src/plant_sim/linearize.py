@@ -32,7 +32,7 @@ import numpy as np
 from scipy.linalg import expm
 from scipy.optimize import root
 
-from plant_sim.models import DRAIN, FloatArray, PlantInputs, TankNetwork, signed_sqrt_slope
+from plant_sim.models import DRAIN, FloatArray, HeldRhs, PlantInputs, TankNetwork, signed_sqrt_slope
 from tanklab.config import PlantConfig
 
 
@@ -66,17 +66,12 @@ class LinearModel:
 
 
 def level_rhs(net: TankNetwork, h: FloatArray, q: FloatArray, u: PlantInputs) -> FloatArray:
-    """dh/dt [m/s] of the level dynamics with pump flows ``q`` given directly (no spill, no lag)."""
-    qv = net.valve_flows(h, u.valve_openings)
-    net_in = (
-        net.pump_matrix @ q
-        + net.disturbance_flows(h, u.disturbances_m3_s)
-        - net.leak_flows(h, u.leak_openings)
-    )
-    np.subtract.at(net_in, net.valve_up, qv)
-    into = net.valve_down != DRAIN
-    np.add.at(net_in, net.valve_down[into], qv[into])
-    return net_in / net.area_m2
+    """dh/dt [m/s] of the level dynamics with pump flows ``q`` [m^3/s] given directly (no spill,
+    no lag): the reference right-hand side (:class:`~plant_sim.models.HeldRhs`) with every pump
+    held at its flow, its net inflows before spilling over the tanks' areas."""
+    f = HeldRhs(net, u, pump_flows_m3_s=np.asarray(q, dtype=float).tolist())
+    flows = f.flows(net.initial_state(np.asarray(h, dtype=float)).tolist())
+    return (flows.net + flows.spill) / net.area_m2
 
 
 def jacobian(net: TankNetwork, levels_m: FloatArray, u: PlantInputs) -> tuple[FloatArray, FloatArray]:

@@ -75,7 +75,7 @@ class TransmitterBank:
         are bit-identical to it: ``numpy.round`` and ``round`` both round half to even, and the
         clip is ``min(max(y, lo), hi)`` as ``numpy.clip``. ``test_sensors.py`` checks both forms
         against each other (Hypothesis). The noise stays one draw of ``n`` normals per read (a
-        block draw gives the same numbers but leaves the generator ahead, and saves < 1 us).
+        block draw gives the same numbers but leaves the generator ahead, and would save little).
         """
         z = self.rng.standard_normal(levels_m.shape).tolist()
         out = []

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from plant_sim.integrate import step_adaptive, step_rk4
 from plant_sim.models import PlantInputs, TankNetwork, default_inputs
 from plant_sim.plant import PlantSimulator
+from plant_sim.stiffness import fastest_rate_1_s, rate_bound_1_s
 from tanklab.config import load_site
 from tanklab.enums import SensorFault
 from tanklab.errors import IntegrationError
@@ -182,10 +183,10 @@ def test_automatic_substeps_are_inside_rk4s_stability_interval(config: str) -> N
 
     rng = np.random.default_rng(3)
     net = TankNetwork.from_config(load_site(ROOT / f"configs/{config}.yaml").plant)
-    smooth = net.rate_bound_1_s(SMOOTH_ZONE_M)
-    assert smooth < net.fastest_rate_1_s  # the laminar band is where the stiffness is
+    smooth = rate_bound_1_s(net, SMOOTH_ZONE_M)
+    assert smooth < fastest_rate_1_s(net)  # the laminar band is where the stiffness is
     assert rk4_substep_s(net) * smooth <= RK4_COARSE_H_LAMBDA + 1e-12
-    assert event_substep_s(net) * net.fastest_rate_1_s <= RK4_STABLE_H_LAMBDA + 1e-12
+    assert event_substep_s(net) * fastest_rate_1_s(net) <= RK4_STABLE_H_LAMBDA + 1e-12
     assert event_substep_s(net) <= EVENT_SUBSTEP_S
     checked_smooth = 0
     for _ in range(60):
@@ -198,7 +199,7 @@ def test_automatic_substeps_are_inside_rk4s_stability_interval(config: str) -> N
             np.zeros(net.n_tanks),
         )
         eig = float(np.max(np.abs(np.linalg.eigvals(_jacobian_levels(net, x, u)))))
-        assert eig <= net.fastest_rate_1_s * (1 + 1e-6)
+        assert eig <= fastest_rate_1_s(net) * (1 + 1e-6)
         if _smooth_state(net, net.levels(x), SMOOTH_ZONE_M):
             checked_smooth += 1
             assert eig <= smooth * (1 + 1e-6)
@@ -213,9 +214,9 @@ def test_smooth_rate_bound_is_reached_at_the_zone_edge() -> None:
     u = PlantInputs(np.zeros(net.n_pumps), np.ones(net.n_valves), np.ones(net.n_tanks), np.zeros(net.n_tanks))
     x = net.initial_state(np.full(net.n_tanks, h))
     eig = float(np.max(np.abs(np.linalg.eigvals(_jacobian_levels(net, x, u)))))
-    assert eig == pytest.approx(net.rate_bound_1_s(h), rel=1e-5)
+    assert eig == pytest.approx(rate_bound_1_s(net, h), rel=1e-5)
     with pytest.raises(ValueError, match="min_head_m"):
-        net.rate_bound_1_s(0.0)
+        rate_bound_1_s(net, 0.0)
 
 
 def test_overflow_in_one_long_substep_is_refined() -> None:
@@ -361,8 +362,10 @@ def test_checkpoint_round_trip() -> None:
     dist=st.tuples(*[st.floats(-1e-4, 1e-4)] * 3),
     lag=st.booleans(),
 )
-def test_scalar_rhs_equals_the_numpy_rhs(h, q, valves, leaks, dist, lag) -> None:
-    from plant_sim.models import ScalarRhs
+def test_fast_path_rhs_equals_the_numpy_rhs(h, q, valves, leaks, dist, lag) -> None:
+    from plant_sim.integrate import rk4_step
+    from plant_sim.kernel import bind
+    from plant_sim.models import HeldRhs
 
     plant = SIM.model_copy(deep=True)
     if lag:
@@ -371,7 +374,8 @@ def test_scalar_rhs_equals_the_numpy_rhs(h, q, valves, leaks, dist, lag) -> None
     u = _inputs(net, q, valves, leaks, dist)
     x = net.initial_state(np.array(h), np.array([5e-5, 0.0]))
     x[-4:] = [1e-3, 2e-3, 3e-4, 1e-5]
-    assert np.allclose(ScalarRhs(net, u)(x.tolist()), net.rhs(0.0, x, u), rtol=1e-12, atol=1e-18)
+    rhs = bind(HeldRhs(net, u), rk4_step).rhs
+    assert np.allclose(rhs(x.tolist()), net.rhs(0.0, x, u), rtol=1e-12, atol=1e-18)
 
 
 def test_step_lengths_are_validated_every_call_and_zero_steps_nothing() -> None:

@@ -3,7 +3,7 @@
 Guards: ``TransmitterBank.read`` (floats) against the former numpy form, kept here as the oracle;
 ``PlantSimulator.set_commands``' fast path against its array checks (accepts and refuses alike);
 ``PlantSimulator.pump_flows`` against ``TankNetwork.actual_pump_flows``; and the memo of
-``ScalarRhs``' fixed part (openings and disturbances) against a fresh build, also when an input
+``HeldRhs``' held part (openings and disturbances) against a fresh build, also when an input
 array is changed in place.
 """
 
@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plant_sim.models import PlantInputs, ScalarRhs, TankNetwork, _fixed_part
+from plant_sim.models import HeldRhs, PlantInputs, TankNetwork
 from plant_sim.plant import PlantSimulator
 from plant_sim.sensors import TransmitterBank
 from tanklab.config import load_site
@@ -157,7 +157,7 @@ def test_pump_flows_equal_array_form(plant: object, cmd: list[float], q: list[fl
     np.testing.assert_array_equal(sim.pump_flows, sim.net.actual_pump_flows(sim.x, sim.inputs))
 
 
-def _rhs_fields(f: ScalarRhs) -> tuple[object, ...]:
+def _rhs_fields(f: HeldRhs) -> tuple[object, ...]:
     return (f.inflow, f.v_in0, f.lagged, f.outflows, f.drains, f.links, f.leaks)
 
 
@@ -168,22 +168,22 @@ def _rhs_fields(f: ScalarRhs) -> tuple[object, ...]:
     dist=st.lists(st.sampled_from([0.0, -1e-5, 2e-5]), min_size=3, max_size=3),
     x=st.lists(st.floats(0.0, 0.6), min_size=3, max_size=3),
 )
-def test_scalar_rhs_memo_equals_fresh_build(
+def test_held_rhs_memo_equals_fresh_build(
     openings: list[float], leaks: list[float], dist: list[float], x: list[float]
 ) -> None:
     net = TankNetwork.from_config(SIM)
     fresh_net = TankNetwork.from_config(SIM)  # its own, empty memo
     op = np.array(openings[: net.n_valves])
     u = PlantInputs(np.array([3e-5, 3e-5]), op, np.array(leaks), np.array(dist))
-    ScalarRhs(
+    HeldRhs(
         net, PlantInputs(u.pump_commands, op * 0.5, u.leak_openings, u.disturbances_m3_s)
     )  # memo: other values
-    a = ScalarRhs(net, u)
-    b = ScalarRhs(fresh_net, u)
+    a = HeldRhs(net, u)
+    b = HeldRhs(fresh_net, u)
     assert _rhs_fields(a) == _rhs_fields(b)
     state = [*x, 3e-5, 3e-5, 0.0, 0.0, 0.0, 0.0]
     assert a(state) == b(state)
     # an array changed in place is noticed (the memo compares values, not objects)
     u.valve_openings[0] = 0.5 * u.valve_openings[0] + 0.25
-    assert _rhs_fields(ScalarRhs(net, u)) == _rhs_fields(ScalarRhs(TankNetwork.from_config(SIM), u))
-    assert _fixed_part(net, u) is _fixed_part(net, u)  # reused while equal
+    assert _rhs_fields(HeldRhs(net, u)) == _rhs_fields(HeldRhs(TankNetwork.from_config(SIM), u))
+    assert HeldRhs(net, u).part is HeldRhs(net, u).part  # reused while equal

@@ -1,12 +1,13 @@
-"""The generated right-hand side and RK4 step equal their loop forms bit for bit.
+"""The fast path's kernel equals the reference right-hand side bit for bit.
 
-Guards :func:`plant_sim.models._generate_rhs` (``ScalarRhs.fn``, ``fn_at`` and ``code.outside``)
-against ``ScalarRhs.generic`` and :func:`plant_sim.integrate.rk4_step_for` against
-``_rk4_reference``, for every shipped site config (with and without a lagged pump), over random
-states and inputs that include the non-smooth regions: levels in the laminar band around empty,
-negative levels and -0.0, levels at and above Hmax (spilling), equal levels across a valve,
-closed valves and leaks, commands beyond the pumps' ranges, inflow and outflow disturbances.
-Equality is of the bits (``-0.0 != 0.0`` here), not of the values.
+Guards :mod:`plant_sim.kernel` (``bind``: ``rhs`` and ``rhs_at``, traced from
+``HeldRhs.derivative``) against the reference ``HeldRhs`` itself, and the RK4 step on the kernel
+against the same step on the reference (``plant_sim.integrate.reference_rhs``), for every shipped
+site config (with and without a lagged pump), over random states and inputs that include the
+non-smooth regions: levels in the laminar band around empty, negative levels and -0.0, levels at
+and above Hmax (spilling), equal levels across a valve, closed valves and leaks, commands beyond
+the pumps' ranges, inflow and outflow disturbances. Equality is of the bits (``-0.0 != 0.0``
+here), not of the values.
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plant_sim.integrate import _rk4_reference, rk4_step_for
-from plant_sim.models import PlantInputs, ScalarRhs, TankNetwork
+from plant_sim.integrate import reference_rhs, rk4_step
+from plant_sim.kernel import bind, kernel_for
+from plant_sim.models import HeldRhs, PlantInputs, TankNetwork
 from tanklab.config import load_site
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -74,54 +76,65 @@ def _case(draw: st.DrawFn, net: TankNetwork) -> tuple[PlantInputs, list[float], 
     return u, x, slope, c
 
 
-@pytest.mark.parametrize("key", list(NETS), ids=[f"{name}-{'lag' if lag else 'nolag'}" for name, lag in NETS])
+IDS = [f"{name}-{'lag' if lag else 'nolag'}" for name, lag in NETS]
+
+
+@pytest.mark.parametrize("key", list(NETS), ids=IDS)
 @settings(max_examples=150, deadline=None)
 @given(data=st.data())
-def test_generated_rhs_equals_generic_bit_for_bit(key: tuple[str, bool], data: st.DataObject) -> None:
+def test_kernel_equals_the_reference_bit_for_bit(key: tuple[str, bool], data: st.DataObject) -> None:
     net = NETS[key]
     u, x, k, c = data.draw(_case(net))
-    f = ScalarRhs(net, u)
-    assert _bits(f.fn(x)) == _bits(f.generic(x))
-    assert _bits(f(x)) == _bits(f.generic(x))
-    # a stage point, formed inside fn_at as the loop form forms it as a list
+    f = HeldRhs(net, u)
+    bound = bind(f, rk4_step)
+    rhs, rhs_at = bound.rhs, bound.rhs_at
+    assert _bits(rhs(x)) == _bits(f(x))
+    assert _bits(rhs(x)) == _bits(net.rhs(0.0, np.array(x), u).tolist())
+    # a stage point, formed inside rhs_at as the integrator forms it as a list
     m = net.n_tanks + net.n_pumps
     stage = [a + c * b for a, b in zip(x[:m], k, strict=False)]
-    assert _bits(f.fn_at(x, k, c)) == _bits(f.generic(stage))
-    n, hmax = net.n_tanks, f.hmax
-    assert f.code.outside(x) == any(x[i] < 0.0 or x[i] > hmax[i] for i in range(n))
+    assert _bits(rhs_at(x, k, c)) == _bits(f(stage))
 
 
-@pytest.mark.parametrize("key", list(NETS), ids=[f"{name}-{'lag' if lag else 'nolag'}" for name, lag in NETS])
+@pytest.mark.parametrize("key", list(NETS), ids=IDS)
 @settings(max_examples=60, deadline=None)
 @given(data=st.data(), h=st.sampled_from([0.05, 0.5, 0.716, 1.0]) | st.floats(1e-3, 2.5))
-def test_generated_rk4_step_equals_the_loop_form(
+def test_traced_rk4_step_equals_it_on_the_reference(
     key: tuple[str, bool], data: st.DataObject, h: float
 ) -> None:
     net = NETS[key]
     u, x, _k, _c = data.draw(_case(net))
-    f = ScalarRhs(net, u)
-    y_new, spilled = rk4_step_for(len(x))(f.fn, f.fn_at, x, h)
-    y_ref, spilled_ref = _rk4_reference(f, x, h)
-    assert _bits(y_new) == _bits(y_ref)
-    assert spilled == spilled_ref
+    f = HeldRhs(net, u)
+    bound = bind(f, rk4_step)
+    y_ref, spilled_ref = rk4_step(*reference_rhs(f), x, h)
+    for y_new, spilled in (bound.step(x, h), rk4_step(bound.rhs, bound.rhs_at, x, h)):
+        assert _bits(y_new) == _bits(y_ref)
+        assert _bits([spilled]) == _bits([spilled_ref])
 
 
-def test_generated_code_is_readable_and_cached() -> None:
+def test_kernel_is_straight_line_traced_code_and_cached() -> None:
     net = TankNetwork.from_config(load_site(CONFIGS[0]).plant)
     u = PlantInputs(
         np.full(net.n_pumps, 1e-5), np.ones(net.n_valves), np.zeros(net.n_tanks), np.zeros(net.n_tanks)
     )
-    a, b = ScalarRhs(net, u), ScalarRhs(net, u)
-    assert a.code is b.code  # compiled once per layout, not per step
-    src = a.code.source
-    assert (
-        "tests/plant_sim/test_generated_rhs.py" in src
-        and "def rhs(x):" in src
-        and "def rhs_at(y, k, c):" in src
-    )
-    assert "for " not in src.split('"""')[-1]  # straight-line: no loops
-    assert "def rk4_step(rhs, rhs_at, y, h):" in rk4_step_for(9).source  # type: ignore[attr-defined]
+    a, b = kernel_for(HeldRhs(net, u), rk4_step), kernel_for(HeldRhs(net, u), rk4_step)
+    assert a is b  # compiled once per layout, not per step
+    src = a.source
+    assert "HeldRhs.derivative" in src and "def rhs(x):" in src and "def rhs_at(y, k, c):" in src
+    assert "def step(y, h):" in src
+    body = src.split('"""')[-1]
+    assert "for " not in body and "while " not in body  # straight-line: the loops ran while tracing
+    assert "math_sqrt(" in body  # the laws, inlined from plant_sim.models
     # closing a valve changes the layout: new code, the old kept in the network's cache
     shut = PlantInputs(u.pump_commands, np.zeros(net.n_valves), u.leak_openings, u.disturbances_m3_s)
-    assert ScalarRhs(net, shut).code is not a.code
-    assert ScalarRhs(net, u).code is a.code
+    assert kernel_for(HeldRhs(net, shut), rk4_step) is not a
+    assert kernel_for(HeldRhs(net, u), rk4_step) is a
+
+
+def test_kernel_refuses_pump_flows_given_directly() -> None:
+    """``level_rhs``' form (every pump held at a given flow) is the reference's alone."""
+    net = TankNetwork.from_config(load_site(CONFIGS[0]).plant)
+    n = net.n_tanks
+    u = PlantInputs(np.zeros(net.n_pumps), np.ones(net.n_valves), np.zeros(n), np.zeros(n))
+    with pytest.raises(ValueError, match="pump_flows_m3_s"):
+        bind(HeldRhs(net, u, pump_flows_m3_s=[1e-5] * net.n_pumps), rk4_step)
