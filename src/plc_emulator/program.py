@@ -18,13 +18,12 @@ A scan (period Ts of model time) does, in order:
    the field link failed (``io_healthy`` false), the link flagged it, it is not finite, outside
    the transmitter range, or frozen (``pv_frozen_scans`` identical readings in a row, when
    enabled).
-4. **Execute blocks**: the PID loops as MIMO velocity-form blocks (one per group of loops
-   coupled by ``cross_gains``), the NL-PI and MRAC loops as single-loop blocks. REMOTE on a
-   non-PID block applies ``RemoteMV`` through the block's MANUAL path, so every block is
-   bumpless in every direction. A loop whose PV has been bad for ``pv_bad_scans`` scans applies
-   its substitute output in AUTO and REMOTE (``hold`` or ``value``, at the rate limit). A PID
-   group of one loop runs on floats (``Pid.step_siso``, the PID module's single-loop fast path:
-   the same results as its array path, docs/plc.md section 10).
+4. **Execute blocks**: one ``plc_emulator.loop.LoopShell`` per group of loops, whatever its block
+   (decision 0029): the PID loops as MIMO velocity-form blocks (one per group of loops coupled
+   by ``cross_gains``), the NL-PI and MRAC loops as single-loop blocks. The shell owns the SP
+   ramp, the modes and held values, the substitute output (``hold`` or ``value``, at the rate
+   limit) after ``pv_bad_scans`` bad scans in AUTO and REMOTE, the rate limit and the clamp, so
+   every block is bumpless in every direction.
 5. **Interlocks**: a delivered, finite reading at or above high-high (over-range and frozen
    readings included: fail-safe) trips its tank's pumps to their lowest command in every mode,
    with any gains, supervisor alive or not. The trip latches until the level is below the reset
@@ -62,12 +61,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from plc_emulator.loop import LoopShell, ShellConfig
 from plc_emulator.mrac import Mrac, MracConfig
 from plc_emulator.nlpi import AdaptiveNlPi, AdaptiveNlPiConfig, NlPi, NlPiConfig
-from plc_emulator.pid import Pid, PidConfig, PidGains
+from plc_emulator.pid import Pid, PidConfig
+from plc_emulator.single_loop import SingleLoopBlock
 from plc_emulator.tuning import nlpi_gains
-from tanklab.config import LoopSpec, PidGainsSpec, SiteConfig
+from tanklab.config import LoopSpec, SiteConfig
 from tanklab.enums import GainSource, LoopMode
+from tanklab.gains import GainBox, LoopGains, LoopLimits, PidGains
 from tanklab.tags import link_status_paths
 
 FloatArray = NDArray[np.float64]
@@ -139,13 +141,15 @@ class _Loop:
     mode: LoopMode
     manual_mv: float
     remote_mv: float
-    pid: Pid | None = None  # the MIMO PID block of the loop's group (block pid)
-    pid_index: int | None = None  # position in that block
-    block: NlPi | AdaptiveNlPi | Mrac | None = None
-    fixed: PidGainsSpec | None = None
-    applied: PidGainsSpec | None = None
-    last_accepted: PidGainsSpec | None = None
-    staged: PidGainsSpec | None = None
+    shell: LoopShell | None = None  # the loop shell of the loop's group (set by _build_blocks)
+    slot: int = 0  # the loop's position in that shell
+    block_scale: float = 1.0  # SP and PV [m] times this is what the block sees (PID: error unit)
+    block: NlPi | AdaptiveNlPi | Mrac | None = None  # the law of a single-loop block
+    fixed: LoopGains | None = None
+    applied: LoopGains | None = None
+    last_accepted: LoopGains | None = None
+    staged: LoopGains | None = None
+    gain_box: GainBox | None = None  # the admissible SetGains (1 x 1), from the config
     staged_source: GainSource | None = None  # the GainSource the staged set brings at the boundary
     source: GainSource = GainSource.FIXED
     mode_changed_scan: int = -1  # scan_count when the mode last changed (pending until that scan ran)
@@ -153,11 +157,28 @@ class _Loop:
     pv_m: float = math.nan  # PV used this scan [m]; NaN while bad
     pv_bad: bool = False
     pv_last_good_m: float = 0.0  # published while the PV is bad
-    bad_scans: int = 0  # consecutive bad-PV scans (non-PID blocks; the PID counts its own)
     substituted: bool = False  # the substitute output was applied this scan
-    working_sp_m: float | None = None  # ramped setpoint of a non-PID block [m] (None before a scan)
     sp_low_m: float = 0.0  # operator setpoint limits set by the engineer [m], inside the config's
     sp_high_m: float = math.inf
+
+    @property
+    def pid(self) -> Pid | None:
+        """The MIMO PID block of the loop's group (block pid), else None."""
+        return self.shell if isinstance(self.shell, Pid) else None
+
+    @property
+    def working_sp_m(self) -> float | None:
+        """The ramped setpoint of the last scan [m] (None before the first)."""
+        assert self.shell is not None
+        if not self.shell.started:
+            return None
+        return float(self.shell.working_sp[self.slot]) / self.block_scale
+
+    @property
+    def loop_shell(self) -> LoopShell:
+        """The loop's shell (after construction)."""
+        assert self.shell is not None
+        return self.shell
 
 
 @dataclass
@@ -188,14 +209,12 @@ class _Frozen:
 
 
 @dataclass
-class _PidGroup:
-    """PID loops coupled by cross gains, run as one MIMO block."""
+class _Group:
+    """Loops run by one shell: PID loops coupled by cross gains (one MIMO block), or one
+    single-loop block."""
 
     loops: list[_Loop]
-    block: Pid
-    scalar: bool = False
-    """Scan the block through `Pid.step_siso` (one loop: floats, no arrays); set for every
-    one-loop group (tests clear it to scan through `Pid.step` and compare)."""
+    shell: LoopShell
 
 
 class PlcProgram:
@@ -284,6 +303,7 @@ class PlcProgram:
                 )
             manual = spec.manual_mv if spec.manual_mv is not None else pump.initial_command
             mv0 = min(max(pump.initial_command, lo), hi)
+            gains = spec.gains.to_gains() if spec.gains is not None else None  # file -> kernel type
             self.loops.append(
                 _Loop(
                     spec=spec,
@@ -298,9 +318,10 @@ class PlcProgram:
                     manual_mv=min(max(manual, lo), hi),
                     remote_mv=mv0,
                     mv=mv0,
-                    fixed=spec.gains,
-                    applied=spec.gains,
-                    last_accepted=spec.gains,
+                    fixed=gains,
+                    applied=gains,
+                    last_accepted=gains,
+                    gain_box=spec.gain_box.to_box() if spec.gain_box is not None else None,
                 )
             )
         self._pending_heartbeat: int | None = None
@@ -332,19 +353,46 @@ class PlcProgram:
     # ---- construction -------------------------------------------------------------------
 
     def _build_blocks(self) -> None:
+        """One shell per group: a MIMO PID per group of loops coupled by cross gains, a
+        single-loop block per NL-PI or MRAC loop (fixed from here on: the scan needs no search)."""
         self.pid_loops = [lp for lp in self.loops if lp.spec.block == "pid"]
         self.pid_groups = [self._make_pid_group(g) for g in self._coupled_groups(self.pid_loops)]
+        self.groups: list[_Group] = list(self.pid_groups)
         for lp in self.loops:
             if lp.spec.block == "nlpi":
                 lp.block = self._make_nlpi(lp)
             elif lp.spec.block == "mrac":
                 lp.block = self._make_mrac(lp)
-            if lp.block is not None and lp.mode is not LoopMode.AUTO:
-                lp.block.set_mode(
-                    LoopMode.MANUAL, lp.manual_mv if lp.mode is LoopMode.MANUAL else lp.remote_mv
-                )
-        # The NL-PI and MRAC loops with their blocks (fixed from here on: the scan needs no search)
-        self._single_blocks = [(lp, b) for lp in self.loops if (b := lp.block) is not None]
+            else:
+                continue
+            self.groups.append(_Group(loops=[lp], shell=self._shell_of([lp], SingleLoopBlock(lp.block))))
+
+    def _shell_config(self, loops: list[_Loop]) -> ShellConfig:
+        """The shell's constants of a group of loops, in the blocks' units (``block_scale``)."""
+        return ShellConfig(
+            limits=tuple(LoopLimits(lp.mv_min, lp.mv_max, lp.spec.du_max or math.inf) for lp in loops),
+            sp_min=tuple(lp.spec.sp_min_m * lp.block_scale for lp in loops),
+            sp_max=tuple(lp.spec.sp_max_m * lp.block_scale for lp in loops),
+            sp_step=tuple((lp.spec.sp_ramp_m_s or math.inf) * lp.block_scale * self.ts_s for lp in loops),
+            pv_bad_scans=loops[0].spec.pv_bad_scans,
+            substitute=tuple(lp.spec.substitute for lp in loops),
+            substitute_mv=tuple(min(max(lp.spec.substitute_mv, lp.mv_min), lp.mv_max) for lp in loops),
+            initial_mv=tuple(lp.mv for lp in loops),
+            initial_mode=tuple(lp.mode for lp in loops),
+        )
+
+    def _shell_of(self, loops: list[_Loop], block: SingleLoopBlock) -> LoopShell:
+        shell = LoopShell(block, self._shell_config(loops))
+        self._attach(loops, shell)
+        return shell
+
+    @staticmethod
+    def _attach(loops: list[_Loop], shell: LoopShell) -> None:
+        for k, lp in enumerate(loops):
+            lp.shell = shell
+            lp.slot = k
+            if lp.mode is LoopMode.MANUAL:
+                shell.set_mode(k, LoopMode.MANUAL, lp.manual_mv)
 
     @staticmethod
     def _coupled_groups(loops: list[_Loop]) -> list[list[_Loop]]:
@@ -365,41 +413,36 @@ class PlcProgram:
             groups.setdefault(root(lp.spec.name), []).append(lp)
         return list(groups.values())
 
-    def _make_pid_group(self, loops: list[_Loop]) -> _PidGroup:
+    def _make_pid_group(self, loops: list[_Loop]) -> _Group:
         for attr in ("pv_bad_scans", "derivative_filter_s"):
             values = {getattr(lp.spec, attr) for lp in loops}
             if len(values) > 1:
                 names = ", ".join(lp.spec.name for lp in loops)
                 raise ValueError(f"plc.loops {names}: loops coupled by cross_gains must share {attr}")
+        for lp in loops:
+            lp.block_scale = lp.scale
+        sc = self._shell_config(loops)
         cfg = PidConfig(
             n_loops=len(loops),
             ts_s=self.ts_s,
-            u_min=[lp.mv_min for lp in loops],
-            u_max=[lp.mv_max for lp in loops],
-            du_max=[lp.spec.du_max or math.inf for lp in loops]
-            if any(lp.spec.du_max for lp in loops)
-            else None,
+            u_min=[lim.mv_min for lim in sc.limits],
+            u_max=[lim.mv_max for lim in sc.limits],
+            du_max=[lim.du_max for lim in sc.limits],
             d_filter_tf_s=loops[0].spec.derivative_filter_s,
             setpoint_weight_p=[lp.spec.setpoint_weight_p for lp in loops],
             setpoint_weight_d=[lp.spec.setpoint_weight_d for lp in loops],
-            sp_min=[lp.spec.sp_min_m * lp.scale for lp in loops],
-            sp_max=[lp.spec.sp_max_m * lp.scale for lp in loops],
-            sp_rate=[(lp.spec.sp_ramp_m_s or math.inf) * lp.scale for lp in loops]
-            if any(lp.spec.sp_ramp_m_s for lp in loops)
-            else None,
-            initial_mv=[lp.mv for lp in loops],
-            pv_bad_scans=loops[0].spec.pv_bad_scans,
-            substitute=[lp.spec.substitute for lp in loops],
-            substitute_mv=[min(max(lp.spec.substitute_mv, lp.mv_min), lp.mv_max) for lp in loops],
-            initial_mode=[lp.mode for lp in loops],
+            sp_min=list(sc.sp_min),
+            sp_max=list(sc.sp_max),
+            sp_rate=[(lp.spec.sp_ramp_m_s or math.inf) * lp.scale for lp in loops],
+            initial_mv=list(sc.initial_mv),
+            pv_bad_scans=sc.pv_bad_scans,
+            substitute=list(sc.substitute),
+            substitute_mv=list(sc.substitute_mv),
+            initial_mode=list(sc.initial_mode),
         )
-        group = _PidGroup(loops=loops, block=Pid(cfg, self._group_gains(loops)), scalar=len(loops) == 1)
-        for k, lp in enumerate(loops):
-            lp.pid = group.block
-            lp.pid_index = k
-            if lp.mode is LoopMode.MANUAL:
-                group.block.set_mode(k, LoopMode.MANUAL, lp.manual_mv)
-        return group
+        pid = Pid(cfg, self._group_gains(loops))
+        self._attach(loops, pid)
+        return _Group(loops=loops, shell=pid)
 
     @staticmethod
     def _group_gains(loops: list[_Loop]) -> PidGains:
@@ -509,22 +552,14 @@ class PlcProgram:
         if mode is lp.mode:
             return
         lp.mode_changed_scan = self.scan_count
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.set_mode(lp.pid_index, mode)
-            if mode is LoopMode.REMOTE:
-                # Enter REMOTE holding the applied MV until the supervisor writes RemoteMV.
-                lp.remote_mv = float(lp.pid.remote_mv[lp.pid_index])
-            elif mode is LoopMode.MANUAL:
-                lp.manual_mv = float(lp.pid.manual_mv[lp.pid_index])
-        elif lp.block is not None:
-            if mode is LoopMode.AUTO:
-                lp.block.set_mode(LoopMode.AUTO)
-            else:
-                lp.block.set_mode(LoopMode.MANUAL, lp.mv)
-                if mode is LoopMode.MANUAL:
-                    lp.manual_mv = lp.mv
-                else:
-                    lp.remote_mv = lp.mv
+        shell = lp.loop_shell
+        shell.set_mode(lp.slot, mode)
+        # Entering MANUAL or REMOTE holds the applied MV (until the operator or the supervisor
+        # writes ManualMV or RemoteMV).
+        if mode is LoopMode.REMOTE:
+            lp.remote_mv = shell.held_mv(lp.slot)[1]
+        elif mode is LoopMode.MANUAL:
+            lp.manual_mv = shell.held_mv(lp.slot)[0]
         lp.mode = mode
 
     def set_manual_mv(self, name: str, mv: float) -> None:
@@ -532,20 +567,14 @@ class PlcProgram:
         lp = self.loop(name)
         self._check_mv(lp, mv)
         lp.manual_mv = float(mv)
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.set_manual_mv(lp.pid_index, mv)
-        elif lp.block is not None and lp.mode is LoopMode.MANUAL:
-            lp.block.set_manual_mv(mv)
+        lp.loop_shell.set_manual_mv(lp.slot, mv)
 
     def set_remote_mv(self, name: str, mv: float) -> None:
         """Supervisor output for REMOTE [pump unit]; must lie in the MV range."""
         lp = self.loop(name)
         self._check_mv(lp, mv)
         lp.remote_mv = float(mv)
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.set_remote_mv(lp.pid_index, mv)
-        elif lp.block is not None and lp.mode is LoopMode.REMOTE:
-            lp.block.set_manual_mv(mv)
+        lp.loop_shell.set_remote_mv(lp.slot, mv)
 
     @staticmethod
     def _check_mv(lp: _Loop, mv: float) -> None:
@@ -597,12 +626,12 @@ class PlcProgram:
             return GainStatus.OUT_OF_RANGE
         if not all(math.isfinite(v) for v in values):
             return GainStatus.OUT_OF_RANGE
-        box = lp.spec.gain_box
-        if box is not None and not box.contains(*values):
+        box = lp.gain_box
+        if box is not None and not box.contains(LoopGains(*values)):
             return GainStatus.OUT_OF_RANGE
         if source is GainSource.SUPERVISOR and (self.engineer_holds(name) or not self.supervisor_trusted):
             return GainStatus.INVALID_STATE
-        lp.staged = PidGainsSpec(kp=values[0], ki=values[1], kd=values[2])
+        lp.staged = LoopGains(*values)
         lp.staged_source = source
         return GainStatus.STAGED
 
@@ -718,12 +747,12 @@ class PlcProgram:
                 gains = entry.get("gains")
                 if gains is not None and lp.spec.block == "pid":
                     kp, ki, kd = (float(x) for x in gains)
-                    box = lp.spec.gain_box
+                    box = lp.gain_box
                     finite = all(math.isfinite(v) for v in (kp, ki, kd))
-                    if not finite or (box is not None and not box.contains(kp, ki, kd)):
+                    if not finite or (box is not None and not box.contains(LoopGains(kp, ki, kd))):
                         raise ValueError("retained gains outside the gain box")
                     source = GainSource[str(entry["source"])]
-                    lp.applied = PidGainsSpec(kp=kp, ki=ki, kd=kd)
+                    lp.applied = LoopGains(kp, ki, kd)
                     if source is not GainSource.ENGINEER:  # last_accepted: the supervisor's gains
                         lp.last_accepted = lp.applied
                     lp.source = source
@@ -797,16 +826,11 @@ class PlcProgram:
         """Put a loop's applied MV at ``mv`` (and a PID's memory at the reading ``pv_m``)."""
         lp.mv = mv
         self._commands[lp.pump] = mv
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.resume(lp.pid_index, mv, lp.sp_m * lp.scale, pv_m * lp.scale)
-            if lp.mode is LoopMode.REMOTE:
-                lp.remote_mv = mv
-                lp.pid.set_remote_mv(lp.pid_index, mv)
-        elif lp.block is not None:
-            lp.block.track(mv)
-            if lp.mode is LoopMode.REMOTE:
-                lp.remote_mv = mv
-                lp.block.set_manual_mv(mv)
+        shell = lp.loop_shell
+        shell.resume(lp.slot, mv, lp.sp_m * lp.block_scale, pv_m * lp.block_scale)
+        if lp.mode is LoopMode.REMOTE:
+            lp.remote_mv = mv
+            shell.set_remote_mv(lp.slot, mv)
 
     def reset_interlocks(self) -> list[str]:
         """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""
@@ -853,7 +877,8 @@ class PlcProgram:
     def _set_pid_gains(self) -> None:
         for group in self.pid_groups:
             g = self._group_gains(group.loops)
-            group.block.set_gains(g.Kp, g.Ki, g.Kd)
+            assert isinstance(group.shell, Pid)
+            group.shell.set_gains(g.kp, g.ki, g.kd)
 
     def _apply_staged_gains(self) -> None:
         changed = False
@@ -949,54 +974,19 @@ class PlcProgram:
             else:
                 lp.pv_bad = True
                 lp.pv_m = math.nan
-        for group in self.pid_groups:
-            if group.scalar:  # the PID's single-loop fast path: floats, no arrays
-                lp = group.loops[0]
-                one = group.block.step_siso(lp.sp_m * lp.scale, lp.pv_m * lp.scale, not lp.pv_bad)
-                lp.mv = one.mv
-                lp.substituted = one.substituted
-                continue
-            sp = np.array([lp.sp_m * lp.scale for lp in group.loops])
-            pv = np.array([lp.pv_m * lp.scale for lp in group.loops])  # NaN where bad
-            res = group.block.step(sp, pv, np.array([not lp.pv_bad for lp in group.loops]))
-            for k, lp in enumerate(group.loops):
-                lp.mv = float(res.mv[k])
-                lp.substituted = bool(res.substituted[k])
-        for lp, block in self._single_blocks:
-            self._step_block(lp, block)
-
-    def _step_block(self, lp: _Loop, block: NlPi | AdaptiveNlPi | Mrac) -> None:
-        """One scan of a single-loop block: SP ramp, the block, PV-bad substitute, rate limit."""
-        prev = lp.mv
-        lp.bad_scans = lp.bad_scans + 1 if lp.pv_bad else 0
-        spec = lp.spec
-        sp = lp.sp_m
-        if spec.sp_ramp_m_s is not None and lp.working_sp_m is not None:
-            ramp = spec.sp_ramp_m_s * self.ts_s
-            sp = lp.working_sp_m + min(max(sp - lp.working_sp_m, -ramp), ramp)
-        lp.working_sp_m = sp
-        lp.substituted = lp.pv_bad and lp.bad_scans >= spec.pv_bad_scans and lp.mode is not LoopMode.MANUAL
-        track = False
-        if isinstance(block, Mrac):
-            if lp.pv_bad:
-                # MRAC needs a PV: its MANUAL path (MANUAL, REMOTE) still applies the held value,
-                # AUTO holds; either way it re-initialises from the applied MV when the PV returns.
-                raw = block.manual_mv if block.mode is LoopMode.MANUAL else prev
-                track = True
-            else:
-                raw = float(block.step(sp, lp.pv_m).mv)
-        else:
-            # A bad PV holds the NL-PI (and breaks the adaptive variant's regressor chain).
-            pv = sp if lp.pv_bad else lp.pv_m
-            raw = float(block.step(sp, pv, pv_good=not lp.pv_bad).mv)
-        if lp.substituted:
-            raw = min(max(spec.substitute_mv, lp.mv_min), lp.mv_max) if spec.substitute == "value" else prev
-            track = True  # the block re-initialises from the applied MV on its first good scan
-        du = spec.du_max if spec.du_max is not None else math.inf
-        mv = min(max(raw, prev - du, lp.mv_min), prev + du, lp.mv_max)
-        if track or mv != raw:
-            block.track(mv)
-        lp.mv = mv
+        # One call per shell, whatever the block: SP ramp, modes, the law, substitute, limits.
+        for group in self.groups:
+            loops = group.loops
+            shell = group.shell
+            mv = shell.scan(
+                [lp.sp_m * lp.block_scale for lp in loops],
+                [lp.pv_m * lp.block_scale for lp in loops],  # NaN where bad
+                [not lp.pv_bad for lp in loops],
+            )
+            substituted = shell.substituted
+            for k, lp in enumerate(loops):
+                lp.mv = mv[k]
+                lp.substituted = substituted[k]
 
     def _apply_interlocks(self) -> list[bool] | None:
         """Latch trips; return which pumps (pump order) are forced to their lowest command this
@@ -1018,17 +1008,7 @@ class PlcProgram:
             if not forced[lp.pump]:
                 continue
             lp.mv = self._pump_min[lp.pump]
-            held = min(max(lp.mv, lp.mv_min), lp.mv_max)
-            if lp.pid is not None and lp.pid_index is not None:
-                lp.pid.track(lp.pid_index, held)
-                if lp.mode is LoopMode.MANUAL:
-                    lp.pid.set_manual_mv(lp.pid_index, held)
-                elif lp.mode is LoopMode.REMOTE:
-                    lp.pid.set_remote_mv(lp.pid_index, held)
-            elif lp.block is not None:
-                lp.block.track(held)
-                if lp.mode is not LoopMode.AUTO:
-                    lp.block.set_manual_mv(held)
+            held = lp.loop_shell.force(lp.slot, lp.mv)  # clamped to the loop's MV range
             if lp.mode is LoopMode.MANUAL:
                 lp.manual_mv = held
             elif lp.mode is LoopMode.REMOTE:
