@@ -49,6 +49,7 @@ FloatArray = NDArray[np.float64]
 Substitute = Literal["hold", "value"]
 
 _AUTO, _MANUAL, _REMOTE = LoopMode.AUTO, LoopMode.MANUAL, LoopMode.REMOTE  # bound once: hot path
+_isfinite, _isnan = math.isfinite, math.isnan
 
 
 def check_loop(loop: int, n: int) -> int:
@@ -215,7 +216,6 @@ class LoopShell:
         self.rate_limited: list[bool] = [False] * n
         self.clamped: list[bool] = [False] * n
         self.good: list[bool] = [False] * n
-        self.raw: list[float] = [math.nan] * n
         for j, mode in enumerate(self._modes):
             if mode is not _AUTO:
                 block.set_mode(j, mode)
@@ -333,35 +333,35 @@ class LoopShell:
         """Run one scan (validated inputs: finite setpoints, one entry per loop); returns the
         applied MV per actuator (the shell's own list: read, do not keep)."""
         n = self.n
-        w_all, good_all = self._w, self.good
+        w_all, good_all, bad_count = self._w, self.good, self._bad_count
+        sp_lo, sp_hi, sp_step = self._sp_lo, self._sp_hi, self._sp_step
         started = self._started
         for j in range(n):
             # Working setpoint: clamp the target, then ramp toward it. Every min(max(x, lo), hi)
             # here is written out as the builtins evaluate it (NaN and signed zeros alike).
             s = sp[j]
-            lo, hi = self._sp_lo[j], self._sp_hi[j]
+            lo, hi = sp_lo[j], sp_hi[j]
             target = lo if lo > s else s
             target = hi if hi < target else target
             if started:
-                w_prev, step = w_all[j], self._sp_step[j]
+                w_prev, step = w_all[j], sp_step[j]
                 delta = target - w_prev
                 delta = -step if -step > delta else delta
                 w_all[j] = w_prev + (step if step < delta else delta)
             else:
                 w_all[j] = target
-            x = pv[j]
-            good = pv_good[j] and math.isfinite(x)
+            good = pv_good[j] and _isfinite(pv[j])
             good_all[j] = good
-            self._bad_count[j] = 0 if good else self._bad_count[j] + 1
+            bad_count[j] = 0 if good else bad_count[j] + 1
         self._started = True
-        u_prev = self._u
-        raw_law = self.block.step(w_all, pv, good_all, u_prev)
-        self.raw = raw_law
-        out = [0.0] * n
+        u_prev = self._u  # updated in place below: the law has read it, and each j once
         block = self.block
+        raw_law = block.step(w_all, pv, good_all, u_prev)
+        modes, n_bad, du_all, lo_all, hi_all = self._modes, self._n_bad, self._du, self._lo, self._hi
+        substituted_all, rate_limited, clamped = self.substituted, self.rate_limited, self.clamped
         for j in range(n):
             up = u_prev[j]
-            mode = self._modes[j]
+            mode = modes[j]
             good = good_all[j]
             if mode is _AUTO:
                 raw = raw_law[j]
@@ -369,26 +369,25 @@ class LoopShell:
                 raw = self._remote[j]
             else:
                 raw = self._manual[j]
-            substituted = not good and self._bad_count[j] >= self._n_bad and mode is not _MANUAL
+            substituted = not good and bad_count[j] >= n_bad and mode is not _MANUAL
             if substituted:
                 raw = self._subst_mv[j] if self._subst_value[j] else up
-            if math.isnan(raw):  # overflowing products (inf - inf): hold
+            if _isnan(raw):  # overflowing products (inf - inf): hold
                 raw = up
-            du = self._du[j]
+            du = du_all[j]
             low, high = up - du, up + du
             limited = low if low > raw else raw
             limited = high if high < limited else limited
-            lo, hi = self._lo[j], self._hi[j]
+            lo, hi = lo_all[j], hi_all[j]
             u = lo if lo > limited else limited
             u = hi if hi < u else u
-            out[j] = u
-            self.substituted[j] = substituted
-            self.rate_limited[j] = limited != raw
-            self.clamped[j] = u != limited
-            if mode is not _AUTO or not good or substituted or u != raw_law[j]:
+            u_prev[j] = u
+            substituted_all[j] = substituted
+            rate_limited[j] = limited != raw
+            clamped[j] = u != limited
+            if substituted or not good or mode is not _AUTO or u != raw_law[j]:
                 block.track(j, u)
-        self._u = out
-        return out
+        return u_prev
 
     def _clamp(self, j: int, value: float) -> float:
         return float(min(max(value, self._lo[j]), self._hi[j]))

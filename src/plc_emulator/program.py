@@ -61,22 +61,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from plc_emulator.loop import LoopShell, ShellConfig
-from plc_emulator.mrac import Mrac, MracConfig
-from plc_emulator.nlpi import AdaptiveNlPi, AdaptiveNlPiConfig, NlPi, NlPiConfig
-from plc_emulator.pid import Pid, PidConfig
-from plc_emulator.single_loop import SingleLoopBlock
-from plc_emulator.tuning import nlpi_gains
-from tanklab.config import LoopSpec, SiteConfig
+from plc_emulator import retain
+from plc_emulator.loops import ERROR_SCALE, Group, Loop, build_groups, group_gains, make_loops
+from plc_emulator.pid import Pid
+from plc_emulator.watchdog import Watchdog
+from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode
-from tanklab.gains import GainBox, LoopGains, LoopLimits, PidGains
+from tanklab.gains import LoopGains
 from tanklab.tags import link_status_paths
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-ERROR_SCALE = {"m": 1.0, "cm": 100.0}
-"""Factor from metres to the loop's error unit."""
+__all__ = ["ERROR_SCALE", "RUNTIME_OWNED_TAGS", "GainStatus", "PlcProgram", "ScanInputs", "ScanOutputs"]
 
 RUNTIME_OWNED_TAGS = (
     "PLC.Status.ScanPeriod",
@@ -88,10 +85,6 @@ RUNTIME_OWNED_TAGS = (
 )
 """PLC variables the runtime publishes, not :meth:`PlcProgram.values` (plus ``PLC.LIC*.Block``):
 its scan timing, the supervisor's heartbeat and timeout, and its field link's status."""
-
-_TIME_EPS_SCANS = 1e-6
-"""Tolerance on model-time comparisons, in scan periods: model time accumulated as a sum of Ts
-(0.01 s 300 times is not exactly 3.0) must not delay a timeout by a whole scan."""
 
 
 class GainStatus(Enum):
@@ -129,71 +122,6 @@ class ScanOutputs:
 
 
 @dataclass
-class _Loop:
-    spec: LoopSpec
-    index: int  # index among all loops (LIC order)
-    tank: int  # tank index of its PV
-    pump: int  # pump index of its actuator
-    mv_min: float
-    mv_max: float
-    scale: float
-    sp_m: float
-    mode: LoopMode
-    manual_mv: float
-    remote_mv: float
-    shell: LoopShell | None = None  # the loop shell of the loop's group (set by _build_blocks)
-    slot: int = 0  # the loop's position in that shell
-    block_scale: float = 1.0  # SP and PV [m] times this is what the block sees (PID: error unit)
-    block: NlPi | AdaptiveNlPi | Mrac | None = None  # the law of a single-loop block
-    fixed: LoopGains | None = None
-    applied: LoopGains | None = None
-    last_accepted: LoopGains | None = None
-    staged: LoopGains | None = None
-    gain_box: GainBox | None = None  # the admissible SetGains (1 x 1), from the config
-    staged_source: GainSource | None = None  # the GainSource the staged set brings at the boundary
-    source: GainSource = GainSource.FIXED
-    mode_changed_scan: int = -1  # scan_count when the mode last changed (pending until that scan ran)
-    mv: float = 0.0
-    pv_m: float = math.nan  # PV used this scan [m]; NaN while bad
-    pv_bad: bool = False
-    pv_last_good_m: float = 0.0  # published while the PV is bad
-    substituted: bool = False  # the substitute output was applied this scan
-    sp_low_m: float = 0.0  # operator setpoint limits set by the engineer [m], inside the config's
-    sp_high_m: float = math.inf
-
-    @property
-    def pid(self) -> Pid | None:
-        """The MIMO PID block of the loop's group (block pid), else None."""
-        return self.shell if isinstance(self.shell, Pid) else None
-
-    @property
-    def working_sp_m(self) -> float | None:
-        """The ramped setpoint of the last scan [m] (None before the first)."""
-        assert self.shell is not None
-        if not self.shell.started:
-            return None
-        return float(self.shell.working_sp[self.slot]) / self.block_scale
-
-    @property
-    def loop_shell(self) -> LoopShell:
-        """The loop's shell (after construction)."""
-        assert self.shell is not None
-        return self.shell
-
-
-@dataclass
-class _Watchdog:
-    timeout_s: float
-    good_scans_needed: int
-    last_value: int | None = None
-    last_change_s: float | None = None  # None until the first scan (grace period starts there)
-    alive: bool = False
-    ever_alive: bool = False
-    good_scans: int = 0
-    expired: bool = False
-
-
-@dataclass
 class _Interlock:
     tank: int
     tank_name: str
@@ -206,15 +134,6 @@ class _Interlock:
 class _Frozen:
     last: list[float]  # the previous scan's readings
     repeats: list[int]  # consecutive scans each reading has repeated the one before
-
-
-@dataclass
-class _Group:
-    """Loops run by one shell: PID loops coupled by cross gains (one MIMO block), or one
-    single-loop block."""
-
-    loops: list[_Loop]
-    shell: LoopShell
 
 
 class PlcProgram:
@@ -278,7 +197,7 @@ class PlcProgram:
         self.io_healthy = False
         self.pv_frozen_scans = plc.pv_frozen_scans
         self._frozen = _Frozen(last=[math.nan] * n, repeats=[0] * n)
-        self.watchdog = _Watchdog(
+        self.watchdog = Watchdog(
             timeout_s=plc.watchdog.timeout_s if watchdog_timeout_s is None else watchdog_timeout_s,
             good_scans_needed=plc.watchdog.good_scans_to_accept,
         )
@@ -290,42 +209,11 @@ class PlcProgram:
         self.hh_m = np.full(self.n_tanks, math.inf)
         for il in self.interlocks:
             self.hh_m[il.tank] = min(self.hh_m[il.tank], il.high_high_m)
-        self.loops: list[_Loop] = []
-        for j, spec in enumerate(plc.loops):
-            pump = site.plant.pump(spec.actuator)
-            # The loop's MV range never leaves the pump's command range.
-            lo = max(spec.mv_min, pump.command_min) if spec.mv_min is not None else pump.command_min
-            hi = min(spec.mv_max, pump.command_max) if spec.mv_max is not None else pump.command_max
-            if not lo < hi:
-                raise ValueError(
-                    f"plc.loops {spec.name}: MV range [{spec.mv_min}, {spec.mv_max}] does not overlap "
-                    f"{pump.name}'s command range [{pump.command_min}, {pump.command_max}]"
-                )
-            manual = spec.manual_mv if spec.manual_mv is not None else pump.initial_command
-            mv0 = min(max(pump.initial_command, lo), hi)
-            gains = spec.gains.to_gains() if spec.gains is not None else None  # file -> kernel type
-            self.loops.append(
-                _Loop(
-                    spec=spec,
-                    index=j,
-                    tank=tanks.index("T" + spec.pv[2:]),
-                    pump=pumps.index(spec.actuator),
-                    mv_min=lo,
-                    mv_max=hi,
-                    scale=ERROR_SCALE[spec.error_unit],
-                    sp_m=spec.setpoint_m,
-                    mode=spec.mode_enum,
-                    manual_mv=min(max(manual, lo), hi),
-                    remote_mv=mv0,
-                    mv=mv0,
-                    fixed=gains,
-                    applied=gains,
-                    last_accepted=gains,
-                    gain_box=spec.gain_box.to_box() if spec.gain_box is not None else None,
-                )
-            )
+        self.loops = make_loops(site)
         self._pending_heartbeat: int | None = None
-        self._build_blocks()
+        self.pid_groups: list[Group]
+        self.groups: list[Group]
+        self.pid_groups, self.groups = build_groups(self.loops, self.ts_s)
 
     # ---- state after the last scan (arrays built on request) -----------------------------
 
@@ -352,158 +240,9 @@ class PlcProgram:
 
     # ---- construction -------------------------------------------------------------------
 
-    def _build_blocks(self) -> None:
-        """One shell per group: a MIMO PID per group of loops coupled by cross gains, a
-        single-loop block per NL-PI or MRAC loop (fixed from here on: the scan needs no search)."""
-        self.pid_loops = [lp for lp in self.loops if lp.spec.block == "pid"]
-        self.pid_groups = [self._make_pid_group(g) for g in self._coupled_groups(self.pid_loops)]
-        self.groups: list[_Group] = list(self.pid_groups)
-        for lp in self.loops:
-            if lp.spec.block == "nlpi":
-                lp.block = self._make_nlpi(lp)
-            elif lp.spec.block == "mrac":
-                lp.block = self._make_mrac(lp)
-            else:
-                continue
-            self.groups.append(_Group(loops=[lp], shell=self._shell_of([lp], SingleLoopBlock(lp.block))))
-
-    def _shell_config(self, loops: list[_Loop]) -> ShellConfig:
-        """The shell's constants of a group of loops, in the blocks' units (``block_scale``)."""
-        return ShellConfig(
-            limits=tuple(LoopLimits(lp.mv_min, lp.mv_max, lp.spec.du_max or math.inf) for lp in loops),
-            sp_min=tuple(lp.spec.sp_min_m * lp.block_scale for lp in loops),
-            sp_max=tuple(lp.spec.sp_max_m * lp.block_scale for lp in loops),
-            sp_step=tuple((lp.spec.sp_ramp_m_s or math.inf) * lp.block_scale * self.ts_s for lp in loops),
-            pv_bad_scans=loops[0].spec.pv_bad_scans,
-            substitute=tuple(lp.spec.substitute for lp in loops),
-            substitute_mv=tuple(min(max(lp.spec.substitute_mv, lp.mv_min), lp.mv_max) for lp in loops),
-            initial_mv=tuple(lp.mv for lp in loops),
-            initial_mode=tuple(lp.mode for lp in loops),
-        )
-
-    def _shell_of(self, loops: list[_Loop], block: SingleLoopBlock) -> LoopShell:
-        shell = LoopShell(block, self._shell_config(loops))
-        self._attach(loops, shell)
-        return shell
-
-    @staticmethod
-    def _attach(loops: list[_Loop], shell: LoopShell) -> None:
-        for k, lp in enumerate(loops):
-            lp.shell = shell
-            lp.slot = k
-            if lp.mode is LoopMode.MANUAL:
-                shell.set_mode(k, LoopMode.MANUAL, lp.manual_mv)
-
-    @staticmethod
-    def _coupled_groups(loops: list[_Loop]) -> list[list[_Loop]]:
-        """Connected components of the cross-gain graph (loops in LIC order within a group)."""
-        parent = {lp.spec.name: lp.spec.name for lp in loops}
-
-        def root(name: str) -> str:
-            while parent[name] != name:
-                name = parent[name]
-            return name
-
-        for lp in loops:
-            for other in lp.spec.cross_gains:
-                if other in parent:
-                    parent[root(other)] = root(lp.spec.name)
-        groups: dict[str, list[_Loop]] = {}
-        for lp in loops:
-            groups.setdefault(root(lp.spec.name), []).append(lp)
-        return list(groups.values())
-
-    def _make_pid_group(self, loops: list[_Loop]) -> _Group:
-        for attr in ("pv_bad_scans", "derivative_filter_s"):
-            values = {getattr(lp.spec, attr) for lp in loops}
-            if len(values) > 1:
-                names = ", ".join(lp.spec.name for lp in loops)
-                raise ValueError(f"plc.loops {names}: loops coupled by cross_gains must share {attr}")
-        for lp in loops:
-            lp.block_scale = lp.scale
-        sc = self._shell_config(loops)
-        cfg = PidConfig(
-            n_loops=len(loops),
-            ts_s=self.ts_s,
-            u_min=[lim.mv_min for lim in sc.limits],
-            u_max=[lim.mv_max for lim in sc.limits],
-            du_max=[lim.du_max for lim in sc.limits],
-            d_filter_tf_s=loops[0].spec.derivative_filter_s,
-            setpoint_weight_p=[lp.spec.setpoint_weight_p for lp in loops],
-            setpoint_weight_d=[lp.spec.setpoint_weight_d for lp in loops],
-            sp_min=list(sc.sp_min),
-            sp_max=list(sc.sp_max),
-            sp_rate=[(lp.spec.sp_ramp_m_s or math.inf) * lp.scale for lp in loops],
-            initial_mv=list(sc.initial_mv),
-            pv_bad_scans=sc.pv_bad_scans,
-            substitute=list(sc.substitute),
-            substitute_mv=list(sc.substitute_mv),
-            initial_mode=list(sc.initial_mode),
-        )
-        pid = Pid(cfg, self._group_gains(loops))
-        self._attach(loops, pid)
-        return _Group(loops=loops, shell=pid)
-
-    @staticmethod
-    def _group_gains(loops: list[_Loop]) -> PidGains:
-        """The group's gain matrices: applied gains on the diagonal, fixed cross gains off it."""
-        n = len(loops)
-        kp, ki, kd = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
-        index = {lp.spec.name: k for k, lp in enumerate(loops)}
-        for i, lp in enumerate(loops):
-            assert lp.applied is not None
-            kp[i, i], ki[i, i], kd[i, i] = lp.applied.kp, lp.applied.ki, lp.applied.kd
-            for other, g in lp.spec.cross_gains.items():
-                j = index.get(other)
-                if j is not None:
-                    kp[i, j], ki[i, j], kd[i, j] = g.kp, g.ki, g.kd
-        return PidGains(kp, ki, kd)
-
-    def _make_nlpi(self, lp: _Loop) -> NlPi | AdaptiveNlPi:
-        p = lp.spec.nlpi
-        assert p is not None
-        if p.adaptive:
-            return AdaptiveNlPi(
-                AdaptiveNlPiConfig(
-                    ts_s=self.ts_s,
-                    zeta=p.zeta,
-                    wn=p.wn_rad_s,
-                    b0=p.b,
-                    a_prime0=p.a_prime,
-                    u_min=lp.mv_min,
-                    u_max=lp.mv_max,
-                    initial_mv=lp.mv,
-                    memory_s=p.memory_s,
-                )
-            )
-        gains = nlpi_gains(p.b, p.a_prime, p.zeta, p.wn_rad_s)
-        return NlPi(
-            NlPiConfig(ts_s=self.ts_s, gains=gains, u_min=lp.mv_min, u_max=lp.mv_max, initial_mv=lp.mv)
-        )
-
-    def _make_mrac(self, lp: _Loop) -> Mrac:
-        p = lp.spec.mrac
-        assert p is not None
-        return Mrac(
-            MracConfig(
-                ts_s=self.ts_s,
-                law="mit" if p.law == "mit" else "pi",
-                wn=p.wn_rad_s,
-                delta=p.delta,
-                gamma=p.gamma,
-                alpha=p.alpha,
-                theta0=p.theta_initial,
-                theta_min=p.theta_min,
-                theta_max=p.theta_max,
-                u_min=lp.mv_min,
-                u_max=lp.mv_max,
-                initial_mv=lp.mv,
-            )
-        )
-
     # ---- requests between scans ---------------------------------------------------------
 
-    def loop(self, name: str) -> _Loop:
+    def loop(self, name: str) -> Loop:
         """The loop called ``name`` (LIC1, ...)."""
         for lp in self.loops:
             if lp.spec.name == name:
@@ -577,7 +316,7 @@ class PlcProgram:
         lp.loop_shell.set_remote_mv(lp.slot, mv)
 
     @staticmethod
-    def _check_mv(lp: _Loop, mv: float) -> None:
+    def _check_mv(lp: Loop, mv: float) -> None:
         if not (math.isfinite(mv) and lp.mv_min <= mv <= lp.mv_max):
             raise ValueError(f"{lp.spec.name} MV {mv} outside [{lp.mv_min}, {lp.mv_max}]")
 
@@ -693,24 +432,7 @@ class PlcProgram:
         a restart until an operator resets it), the scan counter (scans run so far) and the model
         time at the start of the last scan [s].
         """
-        loops = {}
-        for lp in self.loops:
-            g = lp.applied
-            loops[lp.spec.name] = {
-                "sp_m": lp.sp_m,
-                "sp_limits_m": list(self.sp_limits(lp.spec.name)),
-                "mode": lp.mode.name,
-                "gains": [g.kp, g.ki, g.kd] if g is not None else None,
-                "source": lp.source.name,
-                "manual_mv": lp.manual_mv,
-                "mv": lp.mv,
-            }
-        return {
-            "scan": self.scan_count,
-            "t_s": self.t_s,
-            "loops": loops,
-            "tripped": [il.tank_name for il in self.interlocks if il.tripped],
-        }
+        return retain.retained(self)
 
     def restore_retained(self, data: Mapping[str, Any]) -> list[str]:
         """Warm restart from :meth:`retained` output; return what could not be restored.
@@ -724,53 +446,7 @@ class PlcProgram:
         if the supervisor does not return within its timeout. An engineer's gains come back as
         ENGINEER, still held (the supervisor stays off them until a release or a reset).
         """
-        skipped: list[str] = []
-        if "scan" in data or "t_s" in data:  # absent in files of earlier versions
-            try:
-                scan, t_s = data["scan"], float(data["t_s"])
-                if type(scan) is not int or scan < 0 or not (math.isfinite(t_s) and t_s >= 0.0):
-                    raise ValueError(f"scan {scan!r} and model time {t_s!r} must be >= 0")
-            except (KeyError, ValueError, TypeError) as e:
-                skipped.append(f"scan counter and model time: {e}")
-            else:
-                self.scan_count, self.t_s = scan, t_s
-        for name, entry in dict(data.get("loops", {})).items():
-            try:
-                lp = self.loop(name)
-                if "sp_limits_m" in entry:  # absent in files of earlier versions
-                    lo, hi = (float(x) for x in entry["sp_limits_m"])
-                    lp.sp_low_m, lp.sp_high_m = lp.spec.sp_min_m, lp.spec.sp_max_m
-                    if not lo <= lp.sp_m <= hi:
-                        self.set_sp(name, min(max(lp.sp_m, lo), hi))
-                    self.set_sp_limits(name, lo, hi)
-                self.set_sp(name, float(entry["sp_m"]))
-                gains = entry.get("gains")
-                if gains is not None and lp.spec.block == "pid":
-                    kp, ki, kd = (float(x) for x in gains)
-                    box = lp.gain_box
-                    finite = all(math.isfinite(v) for v in (kp, ki, kd))
-                    if not finite or (box is not None and not box.contains(LoopGains(kp, ki, kd))):
-                        raise ValueError("retained gains outside the gain box")
-                    source = GainSource[str(entry["source"])]
-                    lp.applied = LoopGains(kp, ki, kd)
-                    if source is not GainSource.ENGINEER:  # last_accepted: the supervisor's gains
-                        lp.last_accepted = lp.applied
-                    lp.source = source
-                # Mode before the manual value: entering MANUAL tracks the applied MV.
-                self.set_mode(name, LoopMode[str(entry["mode"])])
-                lp.mode_changed_scan = -1  # a restored mode is not a change in progress
-                self.set_manual_mv(name, float(entry["manual_mv"]))
-                if "mv" in entry:  # the start value until the plant's command is read
-                    mv = float(entry["mv"])
-                    self._check_mv(lp, mv)
-                    self._resume_mv(lp, mv, math.nan)
-            except (KeyError, ValueError, TypeError) as e:
-                skipped.append(f"{name}: {e}")
-        self._set_pid_gains()
-        tripped = set(data.get("tripped", []))
-        for il in self.interlocks:
-            il.tripped = il.tank_name in tripped
-        return skipped
+        return retain.restore_retained(self, data)
 
     @property
     def next_scan_t_s(self) -> float:
@@ -800,29 +476,9 @@ class PlcProgram:
         ValueError
             An array does not have one entry per pump or tank (a programming error).
         """
-        cmd = np.asarray(commands, dtype=float)
-        levels = np.asarray(levels_m, dtype=float)
-        ok = np.asarray(good, dtype=bool)
-        if cmd.shape != (self.n_pumps,) or levels.shape != self._shape or ok.shape != self._shape:
-            raise ValueError(
-                f"resume needs {self.n_pumps} commands and {self.n_tanks} levels and qualities, got "
-                f"shapes {cmd.shape}, {levels.shape} and {ok.shape}"
-            )
-        for k, x in enumerate(levels.tolist()):
-            lo, hi = self._tr_range[k]
-            if ok[k] and math.isfinite(x) and lo <= x <= hi:
-                self._last_good_m[k] = x
-            else:
-                levels[k] = math.nan
-        for lp in self.loops:
-            c = float(cmd[lp.pump])
-            mv = min(max(c, lp.mv_min), lp.mv_max) if math.isfinite(c) else lp.mv
-            pv = float(levels[lp.tank])
-            if math.isfinite(pv):
-                lp.pv_last_good_m = pv
-            self._resume_mv(lp, mv, pv)
+        return retain.resume_from_plant(self, commands, levels_m, good)
 
-    def _resume_mv(self, lp: _Loop, mv: float, pv_m: float) -> None:
+    def _resume_mv(self, lp: Loop, mv: float, pv_m: float) -> None:
         """Put a loop's applied MV at ``mv`` (and a PID's memory at the reading ``pv_m``)."""
         lp.mv = mv
         self._commands[lp.pump] = mv
@@ -876,7 +532,7 @@ class PlcProgram:
 
     def _set_pid_gains(self) -> None:
         for group in self.pid_groups:
-            g = self._group_gains(group.loops)
+            g = group_gains(group.loops)
             assert isinstance(group.shell, Pid)
             group.shell.set_gains(g.kp, g.ki, g.kd)
 
@@ -897,24 +553,8 @@ class PlcProgram:
 
     def _run_watchdog(self) -> bool:
         """Update Alive from the heartbeat; return whether the timeout has expired."""
-        w = self.watchdog
-        value = self._pending_heartbeat
-        self._pending_heartbeat = None
-        if w.last_change_s is None:
-            w.last_change_s = self.t_s  # grace period: the first timeout counts from the first scan
-        if value is not None and value != w.last_value:
-            w.last_value = value
-            w.last_change_s = self.t_s
-        expired = self.t_s - w.last_change_s >= w.timeout_s - _TIME_EPS_SCANS * self.ts_s
-        alive = w.last_value is not None and not expired
-        if alive:
-            w.good_scans += 1
-            w.ever_alive = True
-        else:
-            w.good_scans = 0
-        w.alive = alive
-        w.expired = expired
-        return expired
+        value, self._pending_heartbeat = self._pending_heartbeat, None
+        return self.watchdog.update(self.t_s, value, self.ts_s)
 
     def _fall_back(self) -> None:
         """Supervisor lost: the supervisor's staged gains dropped, supervisor gains -> FALLBACK,
@@ -967,24 +607,25 @@ class PlcProgram:
 
     def _execute_blocks(self) -> None:
         good, levels = self._good, self._levels_m
-        for lp in self.loops:
-            if good[lp.tank]:
-                lp.pv_bad = False
-                lp.pv_m = lp.pv_last_good_m = levels[lp.tank]
-            else:
-                lp.pv_bad = True
-                lp.pv_m = math.nan
         # One call per shell, whatever the block: SP ramp, modes, the law, substitute, limits.
         for group in self.groups:
-            loops = group.loops
-            shell = group.shell
-            mv = shell.scan(
-                [lp.sp_m * lp.block_scale for lp in loops],
-                [lp.pv_m * lp.block_scale for lp in loops],  # NaN where bad
-                [not lp.pv_bad for lp in loops],
-            )
-            substituted = shell.substituted
-            for k, lp in enumerate(loops):
+            sp, pv, ok = group.sp, group.pv, group.ok  # the group's input buffers
+            for k, lp in enumerate(group.loops):
+                tank = lp.tank
+                scale = lp.block_scale
+                sp[k] = lp.sp_m * scale
+                if good[tank]:
+                    lp.pv_bad = False
+                    lp.pv_m = lp.pv_last_good_m = levels[tank]
+                    pv[k] = lp.pv_m * scale
+                    ok[k] = True
+                else:
+                    lp.pv_bad = True
+                    lp.pv_m = pv[k] = math.nan
+                    ok[k] = False
+            mv = group.shell.scan(sp, pv, ok)
+            substituted = group.shell.substituted
+            for k, lp in enumerate(group.loops):
                 lp.mv = mv[k]
                 lp.substituted = substituted[k]
 
