@@ -127,7 +127,7 @@ def make_loops(site: SiteConfig) -> list[Loop]:
             )
         manual = spec.manual_mv if spec.manual_mv is not None else pump.initial_command
         mv0 = min(max(pump.initial_command, lo), hi)
-        gains = spec.gains.to_gains() if spec.gains is not None else None  # file -> kernel type
+        gains = LoopGains.of_spec(spec.gains) if spec.gains is not None else None  # file -> kernel type
         loops.append(
             Loop(
                 spec=spec,
@@ -145,7 +145,7 @@ def make_loops(site: SiteConfig) -> list[Loop]:
                 fixed=gains,
                 applied=gains,
                 last_accepted=gains,
-                gain_box=spec.gain_box.to_box() if spec.gain_box is not None else None,
+                gain_box=GainBox.of_spec(spec.gain_box) if spec.gain_box is not None else None,
             )
         )
     return loops

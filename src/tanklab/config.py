@@ -30,8 +30,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.errors import ConfigError
-from tanklab.gains import GainBox as KernelGainBox
-from tanklab.gains import LoopGains
 
 GRAVITY_M_S2 = 9.81
 """Standard gravity used by every Torricelli flow [m/s^2] (the papers' value)."""
@@ -321,10 +319,6 @@ class PidGainsSpec(Model):
     ki: Finite = Field(description="Integral gain Ki [per s].")
     kd: Finite = Field(0.0, description="Derivative gain Kd [s].")
 
-    def to_gains(self) -> LoopGains:
-        """The kernel's value type (the one conversion from the file format)."""
-        return LoopGains(self.kp, self.ki, self.kd)
-
 
 class GainBox(Model):
     """Admissible gains: SetGains outside this box is rejected with BadOutOfRange."""
@@ -341,16 +335,9 @@ class GainBox(Model):
                 raise ValueError(f"{name}: min must not exceed max")
         return self
 
-    def to_box(self) -> KernelGainBox:
-        """The kernel's one-loop (1 x 1) box (the one conversion from the file format)."""
-        return KernelGainBox.of_loop(self.kp, self.ki, self.kd)
-
     def contains(self, kp: float, ki: float, kd: float) -> bool:
-        """Whether (kp, ki, kd) lies inside the box (bounds included; the kernel box's rule).
-
-        A non-finite gain is outside (the bounds are finite)."""
-        values = (float(kp), float(ki), float(kd))
-        return all(map(math.isfinite, values)) and self.to_box().contains(LoopGains(*values))
+        """Whether (kp, ki, kd) lies inside the box (bounds included)."""
+        return all(lo <= v <= hi for v, (lo, hi) in ((kp, self.kp), (ki, self.ki), (kd, self.kd)))
 
 
 class NlpiSpec(Model):

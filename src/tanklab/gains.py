@@ -15,7 +15,9 @@ the actuator's unit, du_max in MV unit per scan. The ISA form (Kc, Ti, Td) is a 
 (the tuning rules' output, ``plc_emulator.tuning.PidParams``) and converts to `LoopGains`.
 
 The configuration's pydantic models (``tanklab.config.PidGainsSpec``, ``GainBox``) are the file
-format; they convert to these types in one place each (``to_gains``, ``to_box``).
+format; they convert to these types in one place each, here (`LoopGains.of_spec`,
+`GainBox.of_spec`): ``tanklab.config`` imports no numpy, so the operator commands that read a
+config stay free of it (decision 0023), and the conversion cannot live there.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,6 +35,28 @@ __all__ = ["GainBox", "LoopGains", "LoopLimits", "PidGains"]
 FloatArray = NDArray[np.float64]
 
 _NAMES = ("kp", "ki", "kd")
+
+
+class _GainsSpec(Protocol):
+    """What `LoopGains.of_spec` reads (``tanklab.config.PidGainsSpec``)."""
+
+    @property
+    def kp(self) -> float: ...
+    @property
+    def ki(self) -> float: ...
+    @property
+    def kd(self) -> float: ...
+
+
+class _BoxSpec(Protocol):
+    """What `GainBox.of_spec` reads (``tanklab.config.GainBox``: a [min, max] per gain)."""
+
+    @property
+    def kp(self) -> tuple[float, float]: ...
+    @property
+    def ki(self) -> tuple[float, float]: ...
+    @property
+    def kd(self) -> tuple[float, float]: ...
 
 
 def _real(name: str, value: float) -> float:
@@ -80,6 +105,11 @@ class LoopGains:
     def Kd(self) -> float:
         """Alias of `kd`."""
         return self.kd
+
+    @classmethod
+    def of_spec(cls, spec: _GainsSpec) -> LoopGains:
+        """From the config's ``PidGainsSpec`` (the one conversion from the file format)."""
+        return cls(spec.kp, spec.ki, spec.kd)
 
     def as_tuple(self) -> tuple[float, float, float]:
         """``(kp, ki, kd)``."""
@@ -196,6 +226,11 @@ class GainBox:
             PidGains(np.array([[kp[0]]]), np.array([[ki[0]]]), np.array([[kd[0]]])),
             PidGains(np.array([[kp[1]]]), np.array([[ki[1]]]), np.array([[kd[1]]])),
         )
+
+    @classmethod
+    def of_spec(cls, spec: _BoxSpec) -> GainBox:
+        """From the config's ``GainBox`` (the one conversion from the file format)."""
+        return cls.of_loop(spec.kp, spec.ki, spec.kd)
 
     def contains(self, gains: PidGains | LoopGains) -> bool:
         """True when every gain lies inside the box (bounds included); a `LoopGains` needs a

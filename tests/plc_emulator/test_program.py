@@ -539,7 +539,9 @@ def test_an_engineer_hold_survives_a_warm_restart() -> None:
     lp = new.plc.loop("LIC1")
     assert lp.source is ENGINEER and lp.applied == LoopGains(kp=1e-3, ki=2e-5, kd=0.0)
     fixed = energies().plc
-    assert fixed is not None and lp.last_accepted == fixed.loops[0].gains.to_gains()  # not the supervisor's
+    assert fixed is not None and lp.last_accepted == LoopGains.of_spec(
+        fixed.loops[0].gains
+    )  # not the supervisor's
     assert not new.plc.mode_change_pending("LIC1")  # a restored mode is no change in progress
     new.trust([0.4, 0.2, 0.3])
     assert new.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE  # still held
@@ -1157,7 +1159,7 @@ def test_warm_restart_restores_sp_mode_gains_and_trips() -> None:
     skipped = other.restore_retained(saved)
     assert len(skipped) == 2
     assert other.loop("LIC1").sp_m == 0.4
-    assert other.loop("LIC2").applied == site.plc.loops[1].gains.to_gains()
+    assert other.loop("LIC2").applied == LoopGains.of_spec(site.plc.loops[1].gains)
 
 
 # =========================================================================== one MIMO shell or two
