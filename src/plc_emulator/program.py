@@ -62,6 +62,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from plc_emulator import retain
+from plc_emulator.interlocks import Interlock, latch, reset_trips
 from plc_emulator.loops import ERROR_SCALE, Group, Loop, build_groups, group_gains, make_loops
 from plc_emulator.pid import Pid
 from plc_emulator.watchdog import Watchdog
@@ -119,15 +120,6 @@ class ScanOutputs:
 
     commands: FloatArray
     values: dict[str, Any]
-
-
-@dataclass
-class _Interlock:
-    tank: int
-    tank_name: str
-    high_high_m: float
-    reset_below_m: float
-    tripped: bool = False
 
 
 @dataclass
@@ -203,7 +195,7 @@ class PlcProgram:
         )
         self.fallback = plc.watchdog.fallback
         self.interlocks = [
-            _Interlock(tanks.index(il.tank), il.tank, il.high_high_m, il.reset_below_m)
+            Interlock(tanks.index(il.tank), il.tank, il.high_high_m, il.reset_below_m)
             for il in plc.interlocks
         ]
         self.hh_m = np.full(self.n_tanks, math.inf)
@@ -490,13 +482,7 @@ class PlcProgram:
 
     def reset_interlocks(self) -> list[str]:
         """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""
-        reset = []
-        for il in self.interlocks:
-            level = self._levels_m[il.tank]
-            if il.tripped and self._good[il.tank] and level < il.reset_below_m:
-                il.tripped = False
-                reset.append(il.tank_name)
-        return reset
+        return reset_trips(self.interlocks, self._levels_m, self._good)
 
     # ---- the scan -----------------------------------------------------------------------
 
@@ -632,19 +618,9 @@ class PlcProgram:
     def _apply_interlocks(self) -> list[bool] | None:
         """Latch trips; return which pumps (pump order) are forced to their lowest command this
         scan (None: none)."""
-        raw = self._raw_m
-        any_tripped = False
-        for il in self.interlocks:
-            # Fail-safe: any delivered finite reading counts, even over-range or frozen.
-            if raw[il.tank] >= il.high_high_m:
-                il.tripped = True
-            any_tripped = any_tripped or il.tripped
-        if not any_tripped:  # the usual scan: no pump forced, no block to tell
+        forced = latch(self.interlocks, self._raw_m, self._pump_tank)
+        if forced is None:  # the usual scan: no pump forced, no block to tell
             return None
-        tripped = [False] * self.n_tanks
-        for il in self.interlocks:
-            tripped[il.tank] = tripped[il.tank] or il.tripped
-        forced = [tripped[tank] for tank in self._pump_tank]
         for lp in self.loops:
             if not forced[lp.pump]:
                 continue
