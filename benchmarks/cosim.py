@@ -95,7 +95,7 @@ def hotspots(prof: cProfile.Profile, top: int = 8) -> tuple[list[HotSpot], float
 
 PARTS = {
     "plant integration (`plant_sim.integrate.step_rk4`)": ("integrate.py", "step_rk4"),
-    "PID blocks (`plc_emulator.pid.Pid.step_siso`, the single-loop path)": ("pid.py", "step_siso"),
+    "PLC blocks (`plc_emulator.loop.LoopShell.scan`: shells and laws)": ("loop.py", "scan"),
     "PLC scan (`PlcProgram.scan`, PID blocks included)": ("program.py", "scan"),
     "transmitters (`TransmitterBank.read`)": ("sensors.py", "read"),
     "trace (`CoSimulation._record`)": ("cosim.py", "_record"),

@@ -290,7 +290,7 @@ class Mrac(ManualAutoOutput):
         """PI law's integral I [PV unit s]."""
         return self._integral
 
-    def step(self, sp: float, y: float) -> MracStepResult:
+    def step(self, sp: float, y: float, pv_good: bool = True) -> MracStepResult:
         """Run one scan.
 
         Parameters
@@ -298,13 +298,31 @@ class Mrac(ManualAutoOutput):
         sp : float
             Command u_c(k) (setpoint) [PV unit], finite.
         y : float
-            Measured PV y(k) [PV unit], finite.
+            Measured PV y(k) [PV unit], finite when ``pv_good``.
+        pv_good : bool
+            PV quality. MRAC needs a PV: on a bad one the block holds its output (MANUAL: the
+            manual value), the filters and parameters stand still, and the law re-initialises
+            from the applied MV when the PV returns.
 
         Returns
         -------
         MracStepResult
         """
         uc = _finite("sp", sp)
+        if not pv_good:
+            self._u = self._manual if self._mode is LoopMode.MANUAL else self._u
+            self._needs_init = True
+            return MracStepResult(
+                mv=self._u,
+                y_m=self.y_m,
+                model_error=math.nan,
+                theta=self._theta.copy(),
+                phi=np.zeros(2),
+                adapted=False,
+                saturated=False,
+                integral=self._integral if self._c.law == "pi" else 0.0,
+                mode=self._mode,
+            )
         yv = _finite("y", y)
         c = self._c
         if not self._started:

@@ -18,13 +18,12 @@ A scan (period Ts of model time) does, in order:
    the field link failed (``io_healthy`` false), the link flagged it, it is not finite, outside
    the transmitter range, or frozen (``pv_frozen_scans`` identical readings in a row, when
    enabled).
-4. **Execute blocks**: the PID loops as MIMO velocity-form blocks (one per group of loops
-   coupled by ``cross_gains``), the NL-PI and MRAC loops as single-loop blocks. REMOTE on a
-   non-PID block applies ``RemoteMV`` through the block's MANUAL path, so every block is
-   bumpless in every direction. A loop whose PV has been bad for ``pv_bad_scans`` scans applies
-   its substitute output in AUTO and REMOTE (``hold`` or ``value``, at the rate limit). A PID
-   group of one loop runs on floats (``Pid.step_siso``, the PID module's single-loop fast path:
-   the same results as its array path, docs/plc.md section 10).
+4. **Execute blocks**: one ``plc_emulator.loop.LoopShell`` per group of loops, whatever its block
+   (decision 0029): the PID loops as MIMO velocity-form blocks (one per group of loops coupled
+   by ``cross_gains``), the NL-PI and MRAC loops as single-loop blocks. The shell owns the SP
+   ramp, the modes and held values, the substitute output (``hold`` or ``value``, at the rate
+   limit) after ``pv_bad_scans`` bad scans in AUTO and REMOTE, the rate limit and the clamp, so
+   every block is bumpless in every direction.
 5. **Interlocks**: a delivered, finite reading at or above high-high (over-range and frozen
    readings included: fail-safe) trips its tank's pumps to their lowest command in every mode,
    with any gains, supervisor alive or not. The trip latches until the level is below the reset
@@ -62,19 +61,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from plc_emulator.mrac import Mrac, MracConfig
-from plc_emulator.nlpi import AdaptiveNlPi, AdaptiveNlPiConfig, NlPi, NlPiConfig
-from plc_emulator.pid import Pid, PidConfig, PidGains
-from plc_emulator.tuning import nlpi_gains
-from tanklab.config import LoopSpec, PidGainsSpec, SiteConfig
+from plc_emulator import retain
+from plc_emulator.interlocks import Interlock, latch, reset_trips
+from plc_emulator.loops import ERROR_SCALE, Group, Loop, build_groups, group_gains, make_loops
+from plc_emulator.pid import Pid
+from plc_emulator.watchdog import Watchdog
+from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode
+from tanklab.gains import LoopGains
 from tanklab.tags import link_status_paths
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-ERROR_SCALE = {"m": 1.0, "cm": 100.0}
-"""Factor from metres to the loop's error unit."""
+__all__ = ["ERROR_SCALE", "RUNTIME_OWNED_TAGS", "GainStatus", "PlcProgram", "ScanInputs", "ScanOutputs"]
 
 RUNTIME_OWNED_TAGS = (
     "PLC.Status.ScanPeriod",
@@ -86,10 +86,6 @@ RUNTIME_OWNED_TAGS = (
 )
 """PLC variables the runtime publishes, not :meth:`PlcProgram.values` (plus ``PLC.LIC*.Block``):
 its scan timing, the supervisor's heartbeat and timeout, and its field link's status."""
-
-_TIME_EPS_SCANS = 1e-6
-"""Tolerance on model-time comparisons, in scan periods: model time accumulated as a sum of Ts
-(0.01 s 300 times is not exactly 3.0) must not delay a timeout by a whole scan."""
 
 
 class GainStatus(Enum):
@@ -127,75 +123,9 @@ class ScanOutputs:
 
 
 @dataclass
-class _Loop:
-    spec: LoopSpec
-    index: int  # index among all loops (LIC order)
-    tank: int  # tank index of its PV
-    pump: int  # pump index of its actuator
-    mv_min: float
-    mv_max: float
-    scale: float
-    sp_m: float
-    mode: LoopMode
-    manual_mv: float
-    remote_mv: float
-    pid: Pid | None = None  # the MIMO PID block of the loop's group (block pid)
-    pid_index: int | None = None  # position in that block
-    block: NlPi | AdaptiveNlPi | Mrac | None = None
-    fixed: PidGainsSpec | None = None
-    applied: PidGainsSpec | None = None
-    last_accepted: PidGainsSpec | None = None
-    staged: PidGainsSpec | None = None
-    staged_source: GainSource | None = None  # the GainSource the staged set brings at the boundary
-    source: GainSource = GainSource.FIXED
-    mode_changed_scan: int = -1  # scan_count when the mode last changed (pending until that scan ran)
-    mv: float = 0.0
-    pv_m: float = math.nan  # PV used this scan [m]; NaN while bad
-    pv_bad: bool = False
-    pv_last_good_m: float = 0.0  # published while the PV is bad
-    bad_scans: int = 0  # consecutive bad-PV scans (non-PID blocks; the PID counts its own)
-    substituted: bool = False  # the substitute output was applied this scan
-    working_sp_m: float | None = None  # ramped setpoint of a non-PID block [m] (None before a scan)
-    sp_low_m: float = 0.0  # operator setpoint limits set by the engineer [m], inside the config's
-    sp_high_m: float = math.inf
-
-
-@dataclass
-class _Watchdog:
-    timeout_s: float
-    good_scans_needed: int
-    last_value: int | None = None
-    last_change_s: float | None = None  # None until the first scan (grace period starts there)
-    alive: bool = False
-    ever_alive: bool = False
-    good_scans: int = 0
-    expired: bool = False
-
-
-@dataclass
-class _Interlock:
-    tank: int
-    tank_name: str
-    high_high_m: float
-    reset_below_m: float
-    tripped: bool = False
-
-
-@dataclass
 class _Frozen:
     last: list[float]  # the previous scan's readings
     repeats: list[int]  # consecutive scans each reading has repeated the one before
-
-
-@dataclass
-class _PidGroup:
-    """PID loops coupled by cross gains, run as one MIMO block."""
-
-    loops: list[_Loop]
-    block: Pid
-    scalar: bool = False
-    """Scan the block through `Pid.step_siso` (one loop: floats, no arrays); set for every
-    one-loop group (tests clear it to scan through `Pid.step` and compare)."""
 
 
 class PlcProgram:
@@ -259,52 +189,23 @@ class PlcProgram:
         self.io_healthy = False
         self.pv_frozen_scans = plc.pv_frozen_scans
         self._frozen = _Frozen(last=[math.nan] * n, repeats=[0] * n)
-        self.watchdog = _Watchdog(
+        self.watchdog = Watchdog(
             timeout_s=plc.watchdog.timeout_s if watchdog_timeout_s is None else watchdog_timeout_s,
             good_scans_needed=plc.watchdog.good_scans_to_accept,
         )
         self.fallback = plc.watchdog.fallback
         self.interlocks = [
-            _Interlock(tanks.index(il.tank), il.tank, il.high_high_m, il.reset_below_m)
+            Interlock(tanks.index(il.tank), il.tank, il.high_high_m, il.reset_below_m)
             for il in plc.interlocks
         ]
         self.hh_m = np.full(self.n_tanks, math.inf)
         for il in self.interlocks:
             self.hh_m[il.tank] = min(self.hh_m[il.tank], il.high_high_m)
-        self.loops: list[_Loop] = []
-        for j, spec in enumerate(plc.loops):
-            pump = site.plant.pump(spec.actuator)
-            # The loop's MV range never leaves the pump's command range.
-            lo = max(spec.mv_min, pump.command_min) if spec.mv_min is not None else pump.command_min
-            hi = min(spec.mv_max, pump.command_max) if spec.mv_max is not None else pump.command_max
-            if not lo < hi:
-                raise ValueError(
-                    f"plc.loops {spec.name}: MV range [{spec.mv_min}, {spec.mv_max}] does not overlap "
-                    f"{pump.name}'s command range [{pump.command_min}, {pump.command_max}]"
-                )
-            manual = spec.manual_mv if spec.manual_mv is not None else pump.initial_command
-            mv0 = min(max(pump.initial_command, lo), hi)
-            self.loops.append(
-                _Loop(
-                    spec=spec,
-                    index=j,
-                    tank=tanks.index("T" + spec.pv[2:]),
-                    pump=pumps.index(spec.actuator),
-                    mv_min=lo,
-                    mv_max=hi,
-                    scale=ERROR_SCALE[spec.error_unit],
-                    sp_m=spec.setpoint_m,
-                    mode=spec.mode_enum,
-                    manual_mv=min(max(manual, lo), hi),
-                    remote_mv=mv0,
-                    mv=mv0,
-                    fixed=spec.gains,
-                    applied=spec.gains,
-                    last_accepted=spec.gains,
-                )
-            )
+        self.loops = make_loops(site)
         self._pending_heartbeat: int | None = None
-        self._build_blocks()
+        self.pid_groups: list[Group]
+        self.groups: list[Group]
+        self.pid_groups, self.groups = build_groups(self.loops, self.ts_s)
 
     # ---- state after the last scan (arrays built on request) -----------------------------
 
@@ -331,136 +232,9 @@ class PlcProgram:
 
     # ---- construction -------------------------------------------------------------------
 
-    def _build_blocks(self) -> None:
-        self.pid_loops = [lp for lp in self.loops if lp.spec.block == "pid"]
-        self.pid_groups = [self._make_pid_group(g) for g in self._coupled_groups(self.pid_loops)]
-        for lp in self.loops:
-            if lp.spec.block == "nlpi":
-                lp.block = self._make_nlpi(lp)
-            elif lp.spec.block == "mrac":
-                lp.block = self._make_mrac(lp)
-            if lp.block is not None and lp.mode is not LoopMode.AUTO:
-                lp.block.set_mode(
-                    LoopMode.MANUAL, lp.manual_mv if lp.mode is LoopMode.MANUAL else lp.remote_mv
-                )
-        # The NL-PI and MRAC loops with their blocks (fixed from here on: the scan needs no search)
-        self._single_blocks = [(lp, b) for lp in self.loops if (b := lp.block) is not None]
-
-    @staticmethod
-    def _coupled_groups(loops: list[_Loop]) -> list[list[_Loop]]:
-        """Connected components of the cross-gain graph (loops in LIC order within a group)."""
-        parent = {lp.spec.name: lp.spec.name for lp in loops}
-
-        def root(name: str) -> str:
-            while parent[name] != name:
-                name = parent[name]
-            return name
-
-        for lp in loops:
-            for other in lp.spec.cross_gains:
-                if other in parent:
-                    parent[root(other)] = root(lp.spec.name)
-        groups: dict[str, list[_Loop]] = {}
-        for lp in loops:
-            groups.setdefault(root(lp.spec.name), []).append(lp)
-        return list(groups.values())
-
-    def _make_pid_group(self, loops: list[_Loop]) -> _PidGroup:
-        for attr in ("pv_bad_scans", "derivative_filter_s"):
-            values = {getattr(lp.spec, attr) for lp in loops}
-            if len(values) > 1:
-                names = ", ".join(lp.spec.name for lp in loops)
-                raise ValueError(f"plc.loops {names}: loops coupled by cross_gains must share {attr}")
-        cfg = PidConfig(
-            n_loops=len(loops),
-            ts_s=self.ts_s,
-            u_min=[lp.mv_min for lp in loops],
-            u_max=[lp.mv_max for lp in loops],
-            du_max=[lp.spec.du_max or math.inf for lp in loops]
-            if any(lp.spec.du_max for lp in loops)
-            else None,
-            d_filter_tf_s=loops[0].spec.derivative_filter_s,
-            setpoint_weight_p=[lp.spec.setpoint_weight_p for lp in loops],
-            setpoint_weight_d=[lp.spec.setpoint_weight_d for lp in loops],
-            sp_min=[lp.spec.sp_min_m * lp.scale for lp in loops],
-            sp_max=[lp.spec.sp_max_m * lp.scale for lp in loops],
-            sp_rate=[(lp.spec.sp_ramp_m_s or math.inf) * lp.scale for lp in loops]
-            if any(lp.spec.sp_ramp_m_s for lp in loops)
-            else None,
-            initial_mv=[lp.mv for lp in loops],
-            pv_bad_scans=loops[0].spec.pv_bad_scans,
-            substitute=[lp.spec.substitute for lp in loops],
-            substitute_mv=[min(max(lp.spec.substitute_mv, lp.mv_min), lp.mv_max) for lp in loops],
-            initial_mode=[lp.mode for lp in loops],
-        )
-        group = _PidGroup(loops=loops, block=Pid(cfg, self._group_gains(loops)), scalar=len(loops) == 1)
-        for k, lp in enumerate(loops):
-            lp.pid = group.block
-            lp.pid_index = k
-            if lp.mode is LoopMode.MANUAL:
-                group.block.set_mode(k, LoopMode.MANUAL, lp.manual_mv)
-        return group
-
-    @staticmethod
-    def _group_gains(loops: list[_Loop]) -> PidGains:
-        """The group's gain matrices: applied gains on the diagonal, fixed cross gains off it."""
-        n = len(loops)
-        kp, ki, kd = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
-        index = {lp.spec.name: k for k, lp in enumerate(loops)}
-        for i, lp in enumerate(loops):
-            assert lp.applied is not None
-            kp[i, i], ki[i, i], kd[i, i] = lp.applied.kp, lp.applied.ki, lp.applied.kd
-            for other, g in lp.spec.cross_gains.items():
-                j = index.get(other)
-                if j is not None:
-                    kp[i, j], ki[i, j], kd[i, j] = g.kp, g.ki, g.kd
-        return PidGains(kp, ki, kd)
-
-    def _make_nlpi(self, lp: _Loop) -> NlPi | AdaptiveNlPi:
-        p = lp.spec.nlpi
-        assert p is not None
-        if p.adaptive:
-            return AdaptiveNlPi(
-                AdaptiveNlPiConfig(
-                    ts_s=self.ts_s,
-                    zeta=p.zeta,
-                    wn=p.wn_rad_s,
-                    b0=p.b,
-                    a_prime0=p.a_prime,
-                    u_min=lp.mv_min,
-                    u_max=lp.mv_max,
-                    initial_mv=lp.mv,
-                    memory_s=p.memory_s,
-                )
-            )
-        gains = nlpi_gains(p.b, p.a_prime, p.zeta, p.wn_rad_s)
-        return NlPi(
-            NlPiConfig(ts_s=self.ts_s, gains=gains, u_min=lp.mv_min, u_max=lp.mv_max, initial_mv=lp.mv)
-        )
-
-    def _make_mrac(self, lp: _Loop) -> Mrac:
-        p = lp.spec.mrac
-        assert p is not None
-        return Mrac(
-            MracConfig(
-                ts_s=self.ts_s,
-                law="mit" if p.law == "mit" else "pi",
-                wn=p.wn_rad_s,
-                delta=p.delta,
-                gamma=p.gamma,
-                alpha=p.alpha,
-                theta0=p.theta_initial,
-                theta_min=p.theta_min,
-                theta_max=p.theta_max,
-                u_min=lp.mv_min,
-                u_max=lp.mv_max,
-                initial_mv=lp.mv,
-            )
-        )
-
     # ---- requests between scans ---------------------------------------------------------
 
-    def loop(self, name: str) -> _Loop:
+    def loop(self, name: str) -> Loop:
         """The loop called ``name`` (LIC1, ...)."""
         for lp in self.loops:
             if lp.spec.name == name:
@@ -509,22 +283,14 @@ class PlcProgram:
         if mode is lp.mode:
             return
         lp.mode_changed_scan = self.scan_count
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.set_mode(lp.pid_index, mode)
-            if mode is LoopMode.REMOTE:
-                # Enter REMOTE holding the applied MV until the supervisor writes RemoteMV.
-                lp.remote_mv = float(lp.pid.remote_mv[lp.pid_index])
-            elif mode is LoopMode.MANUAL:
-                lp.manual_mv = float(lp.pid.manual_mv[lp.pid_index])
-        elif lp.block is not None:
-            if mode is LoopMode.AUTO:
-                lp.block.set_mode(LoopMode.AUTO)
-            else:
-                lp.block.set_mode(LoopMode.MANUAL, lp.mv)
-                if mode is LoopMode.MANUAL:
-                    lp.manual_mv = lp.mv
-                else:
-                    lp.remote_mv = lp.mv
+        shell = lp.loop_shell
+        shell.set_mode(lp.slot, mode)
+        # Entering MANUAL or REMOTE holds the applied MV (until the operator or the supervisor
+        # writes ManualMV or RemoteMV).
+        if mode is LoopMode.REMOTE:
+            lp.remote_mv = shell.held_mv(lp.slot)[1]
+        elif mode is LoopMode.MANUAL:
+            lp.manual_mv = shell.held_mv(lp.slot)[0]
         lp.mode = mode
 
     def set_manual_mv(self, name: str, mv: float) -> None:
@@ -532,23 +298,17 @@ class PlcProgram:
         lp = self.loop(name)
         self._check_mv(lp, mv)
         lp.manual_mv = float(mv)
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.set_manual_mv(lp.pid_index, mv)
-        elif lp.block is not None and lp.mode is LoopMode.MANUAL:
-            lp.block.set_manual_mv(mv)
+        lp.loop_shell.set_manual_mv(lp.slot, mv)
 
     def set_remote_mv(self, name: str, mv: float) -> None:
         """Supervisor output for REMOTE [pump unit]; must lie in the MV range."""
         lp = self.loop(name)
         self._check_mv(lp, mv)
         lp.remote_mv = float(mv)
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.set_remote_mv(lp.pid_index, mv)
-        elif lp.block is not None and lp.mode is LoopMode.REMOTE:
-            lp.block.set_manual_mv(mv)
+        lp.loop_shell.set_remote_mv(lp.slot, mv)
 
     @staticmethod
-    def _check_mv(lp: _Loop, mv: float) -> None:
+    def _check_mv(lp: Loop, mv: float) -> None:
         if not (math.isfinite(mv) and lp.mv_min <= mv <= lp.mv_max):
             raise ValueError(f"{lp.spec.name} MV {mv} outside [{lp.mv_min}, {lp.mv_max}]")
 
@@ -597,12 +357,12 @@ class PlcProgram:
             return GainStatus.OUT_OF_RANGE
         if not all(math.isfinite(v) for v in values):
             return GainStatus.OUT_OF_RANGE
-        box = lp.spec.gain_box
-        if box is not None and not box.contains(*values):
+        box = lp.gain_box
+        if box is not None and not box.contains(LoopGains(*values)):
             return GainStatus.OUT_OF_RANGE
         if source is GainSource.SUPERVISOR and (self.engineer_holds(name) or not self.supervisor_trusted):
             return GainStatus.INVALID_STATE
-        lp.staged = PidGainsSpec(kp=values[0], ki=values[1], kd=values[2])
+        lp.staged = LoopGains(*values)
         lp.staged_source = source
         return GainStatus.STAGED
 
@@ -664,24 +424,7 @@ class PlcProgram:
         a restart until an operator resets it), the scan counter (scans run so far) and the model
         time at the start of the last scan [s].
         """
-        loops = {}
-        for lp in self.loops:
-            g = lp.applied
-            loops[lp.spec.name] = {
-                "sp_m": lp.sp_m,
-                "sp_limits_m": list(self.sp_limits(lp.spec.name)),
-                "mode": lp.mode.name,
-                "gains": [g.kp, g.ki, g.kd] if g is not None else None,
-                "source": lp.source.name,
-                "manual_mv": lp.manual_mv,
-                "mv": lp.mv,
-            }
-        return {
-            "scan": self.scan_count,
-            "t_s": self.t_s,
-            "loops": loops,
-            "tripped": [il.tank_name for il in self.interlocks if il.tripped],
-        }
+        return retain.retained(self)
 
     def restore_retained(self, data: Mapping[str, Any]) -> list[str]:
         """Warm restart from :meth:`retained` output; return what could not be restored.
@@ -695,53 +438,7 @@ class PlcProgram:
         if the supervisor does not return within its timeout. An engineer's gains come back as
         ENGINEER, still held (the supervisor stays off them until a release or a reset).
         """
-        skipped: list[str] = []
-        if "scan" in data or "t_s" in data:  # absent in files of earlier versions
-            try:
-                scan, t_s = data["scan"], float(data["t_s"])
-                if type(scan) is not int or scan < 0 or not (math.isfinite(t_s) and t_s >= 0.0):
-                    raise ValueError(f"scan {scan!r} and model time {t_s!r} must be >= 0")
-            except (KeyError, ValueError, TypeError) as e:
-                skipped.append(f"scan counter and model time: {e}")
-            else:
-                self.scan_count, self.t_s = scan, t_s
-        for name, entry in dict(data.get("loops", {})).items():
-            try:
-                lp = self.loop(name)
-                if "sp_limits_m" in entry:  # absent in files of earlier versions
-                    lo, hi = (float(x) for x in entry["sp_limits_m"])
-                    lp.sp_low_m, lp.sp_high_m = lp.spec.sp_min_m, lp.spec.sp_max_m
-                    if not lo <= lp.sp_m <= hi:
-                        self.set_sp(name, min(max(lp.sp_m, lo), hi))
-                    self.set_sp_limits(name, lo, hi)
-                self.set_sp(name, float(entry["sp_m"]))
-                gains = entry.get("gains")
-                if gains is not None and lp.spec.block == "pid":
-                    kp, ki, kd = (float(x) for x in gains)
-                    box = lp.spec.gain_box
-                    finite = all(math.isfinite(v) for v in (kp, ki, kd))
-                    if not finite or (box is not None and not box.contains(kp, ki, kd)):
-                        raise ValueError("retained gains outside the gain box")
-                    source = GainSource[str(entry["source"])]
-                    lp.applied = PidGainsSpec(kp=kp, ki=ki, kd=kd)
-                    if source is not GainSource.ENGINEER:  # last_accepted: the supervisor's gains
-                        lp.last_accepted = lp.applied
-                    lp.source = source
-                # Mode before the manual value: entering MANUAL tracks the applied MV.
-                self.set_mode(name, LoopMode[str(entry["mode"])])
-                lp.mode_changed_scan = -1  # a restored mode is not a change in progress
-                self.set_manual_mv(name, float(entry["manual_mv"]))
-                if "mv" in entry:  # the start value until the plant's command is read
-                    mv = float(entry["mv"])
-                    self._check_mv(lp, mv)
-                    self._resume_mv(lp, mv, math.nan)
-            except (KeyError, ValueError, TypeError) as e:
-                skipped.append(f"{name}: {e}")
-        self._set_pid_gains()
-        tripped = set(data.get("tripped", []))
-        for il in self.interlocks:
-            il.tripped = il.tank_name in tripped
-        return skipped
+        return retain.restore_retained(self, data)
 
     @property
     def next_scan_t_s(self) -> float:
@@ -771,52 +468,21 @@ class PlcProgram:
         ValueError
             An array does not have one entry per pump or tank (a programming error).
         """
-        cmd = np.asarray(commands, dtype=float)
-        levels = np.asarray(levels_m, dtype=float)
-        ok = np.asarray(good, dtype=bool)
-        if cmd.shape != (self.n_pumps,) or levels.shape != self._shape or ok.shape != self._shape:
-            raise ValueError(
-                f"resume needs {self.n_pumps} commands and {self.n_tanks} levels and qualities, got "
-                f"shapes {cmd.shape}, {levels.shape} and {ok.shape}"
-            )
-        for k, x in enumerate(levels.tolist()):
-            lo, hi = self._tr_range[k]
-            if ok[k] and math.isfinite(x) and lo <= x <= hi:
-                self._last_good_m[k] = x
-            else:
-                levels[k] = math.nan
-        for lp in self.loops:
-            c = float(cmd[lp.pump])
-            mv = min(max(c, lp.mv_min), lp.mv_max) if math.isfinite(c) else lp.mv
-            pv = float(levels[lp.tank])
-            if math.isfinite(pv):
-                lp.pv_last_good_m = pv
-            self._resume_mv(lp, mv, pv)
+        return retain.resume_from_plant(self, commands, levels_m, good)
 
-    def _resume_mv(self, lp: _Loop, mv: float, pv_m: float) -> None:
+    def _resume_mv(self, lp: Loop, mv: float, pv_m: float) -> None:
         """Put a loop's applied MV at ``mv`` (and a PID's memory at the reading ``pv_m``)."""
         lp.mv = mv
         self._commands[lp.pump] = mv
-        if lp.pid is not None and lp.pid_index is not None:
-            lp.pid.resume(lp.pid_index, mv, lp.sp_m * lp.scale, pv_m * lp.scale)
-            if lp.mode is LoopMode.REMOTE:
-                lp.remote_mv = mv
-                lp.pid.set_remote_mv(lp.pid_index, mv)
-        elif lp.block is not None:
-            lp.block.track(mv)
-            if lp.mode is LoopMode.REMOTE:
-                lp.remote_mv = mv
-                lp.block.set_manual_mv(mv)
+        shell = lp.loop_shell
+        shell.resume(lp.slot, mv, lp.sp_m * lp.block_scale, pv_m * lp.block_scale)
+        if lp.mode is LoopMode.REMOTE:
+            lp.remote_mv = mv
+            shell.set_remote_mv(lp.slot, mv)
 
     def reset_interlocks(self) -> list[str]:
         """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""
-        reset = []
-        for il in self.interlocks:
-            level = self._levels_m[il.tank]
-            if il.tripped and self._good[il.tank] and level < il.reset_below_m:
-                il.tripped = False
-                reset.append(il.tank_name)
-        return reset
+        return reset_trips(self.interlocks, self._levels_m, self._good)
 
     # ---- the scan -----------------------------------------------------------------------
 
@@ -852,8 +518,9 @@ class PlcProgram:
 
     def _set_pid_gains(self) -> None:
         for group in self.pid_groups:
-            g = self._group_gains(group.loops)
-            group.block.set_gains(g.Kp, g.Ki, g.Kd)
+            g = group_gains(group.loops)
+            assert isinstance(group.shell, Pid)
+            group.shell.set_gains(g.kp, g.ki, g.kd)
 
     def _apply_staged_gains(self) -> None:
         changed = False
@@ -872,24 +539,8 @@ class PlcProgram:
 
     def _run_watchdog(self) -> bool:
         """Update Alive from the heartbeat; return whether the timeout has expired."""
-        w = self.watchdog
-        value = self._pending_heartbeat
-        self._pending_heartbeat = None
-        if w.last_change_s is None:
-            w.last_change_s = self.t_s  # grace period: the first timeout counts from the first scan
-        if value is not None and value != w.last_value:
-            w.last_value = value
-            w.last_change_s = self.t_s
-        expired = self.t_s - w.last_change_s >= w.timeout_s - _TIME_EPS_SCANS * self.ts_s
-        alive = w.last_value is not None and not expired
-        if alive:
-            w.good_scans += 1
-            w.ever_alive = True
-        else:
-            w.good_scans = 0
-        w.alive = alive
-        w.expired = expired
-        return expired
+        value, self._pending_heartbeat = self._pending_heartbeat, None
+        return self.watchdog.update(self.t_s, value, self.ts_s)
 
     def _fall_back(self) -> None:
         """Supervisor lost: the supervisor's staged gains dropped, supervisor gains -> FALLBACK,
@@ -942,93 +593,39 @@ class PlcProgram:
 
     def _execute_blocks(self) -> None:
         good, levels = self._good, self._levels_m
-        for lp in self.loops:
-            if good[lp.tank]:
-                lp.pv_bad = False
-                lp.pv_m = lp.pv_last_good_m = levels[lp.tank]
-            else:
-                lp.pv_bad = True
-                lp.pv_m = math.nan
-        for group in self.pid_groups:
-            if group.scalar:  # the PID's single-loop fast path: floats, no arrays
-                lp = group.loops[0]
-                one = group.block.step_siso(lp.sp_m * lp.scale, lp.pv_m * lp.scale, not lp.pv_bad)
-                lp.mv = one.mv
-                lp.substituted = one.substituted
-                continue
-            sp = np.array([lp.sp_m * lp.scale for lp in group.loops])
-            pv = np.array([lp.pv_m * lp.scale for lp in group.loops])  # NaN where bad
-            res = group.block.step(sp, pv, np.array([not lp.pv_bad for lp in group.loops]))
+        # One call per shell, whatever the block: SP ramp, modes, the law, substitute, limits.
+        for group in self.groups:
+            sp, pv, ok = group.sp, group.pv, group.ok  # the group's input buffers
             for k, lp in enumerate(group.loops):
-                lp.mv = float(res.mv[k])
-                lp.substituted = bool(res.substituted[k])
-        for lp, block in self._single_blocks:
-            self._step_block(lp, block)
-
-    def _step_block(self, lp: _Loop, block: NlPi | AdaptiveNlPi | Mrac) -> None:
-        """One scan of a single-loop block: SP ramp, the block, PV-bad substitute, rate limit."""
-        prev = lp.mv
-        lp.bad_scans = lp.bad_scans + 1 if lp.pv_bad else 0
-        spec = lp.spec
-        sp = lp.sp_m
-        if spec.sp_ramp_m_s is not None and lp.working_sp_m is not None:
-            ramp = spec.sp_ramp_m_s * self.ts_s
-            sp = lp.working_sp_m + min(max(sp - lp.working_sp_m, -ramp), ramp)
-        lp.working_sp_m = sp
-        lp.substituted = lp.pv_bad and lp.bad_scans >= spec.pv_bad_scans and lp.mode is not LoopMode.MANUAL
-        track = False
-        if isinstance(block, Mrac):
-            if lp.pv_bad:
-                # MRAC needs a PV: its MANUAL path (MANUAL, REMOTE) still applies the held value,
-                # AUTO holds; either way it re-initialises from the applied MV when the PV returns.
-                raw = block.manual_mv if block.mode is LoopMode.MANUAL else prev
-                track = True
-            else:
-                raw = float(block.step(sp, lp.pv_m).mv)
-        else:
-            # A bad PV holds the NL-PI (and breaks the adaptive variant's regressor chain).
-            pv = sp if lp.pv_bad else lp.pv_m
-            raw = float(block.step(sp, pv, pv_good=not lp.pv_bad).mv)
-        if lp.substituted:
-            raw = min(max(spec.substitute_mv, lp.mv_min), lp.mv_max) if spec.substitute == "value" else prev
-            track = True  # the block re-initialises from the applied MV on its first good scan
-        du = spec.du_max if spec.du_max is not None else math.inf
-        mv = min(max(raw, prev - du, lp.mv_min), prev + du, lp.mv_max)
-        if track or mv != raw:
-            block.track(mv)
-        lp.mv = mv
+                tank = lp.tank
+                scale = lp.block_scale
+                sp[k] = lp.sp_m * scale
+                if good[tank]:
+                    lp.pv_bad = False
+                    lp.pv_m = lp.pv_last_good_m = levels[tank]
+                    pv[k] = lp.pv_m * scale
+                    ok[k] = True
+                else:
+                    lp.pv_bad = True
+                    lp.pv_m = pv[k] = math.nan
+                    ok[k] = False
+            mv = group.shell.scan(sp, pv, ok)
+            substituted = group.shell.substituted
+            for k, lp in enumerate(group.loops):
+                lp.mv = mv[k]
+                lp.substituted = substituted[k]
 
     def _apply_interlocks(self) -> list[bool] | None:
         """Latch trips; return which pumps (pump order) are forced to their lowest command this
         scan (None: none)."""
-        raw = self._raw_m
-        any_tripped = False
-        for il in self.interlocks:
-            # Fail-safe: any delivered finite reading counts, even over-range or frozen.
-            if raw[il.tank] >= il.high_high_m:
-                il.tripped = True
-            any_tripped = any_tripped or il.tripped
-        if not any_tripped:  # the usual scan: no pump forced, no block to tell
+        forced = latch(self.interlocks, self._raw_m, self._pump_tank)
+        if forced is None:  # the usual scan: no pump forced, no block to tell
             return None
-        tripped = [False] * self.n_tanks
-        for il in self.interlocks:
-            tripped[il.tank] = tripped[il.tank] or il.tripped
-        forced = [tripped[tank] for tank in self._pump_tank]
         for lp in self.loops:
             if not forced[lp.pump]:
                 continue
             lp.mv = self._pump_min[lp.pump]
-            held = min(max(lp.mv, lp.mv_min), lp.mv_max)
-            if lp.pid is not None and lp.pid_index is not None:
-                lp.pid.track(lp.pid_index, held)
-                if lp.mode is LoopMode.MANUAL:
-                    lp.pid.set_manual_mv(lp.pid_index, held)
-                elif lp.mode is LoopMode.REMOTE:
-                    lp.pid.set_remote_mv(lp.pid_index, held)
-            elif lp.block is not None:
-                lp.block.track(held)
-                if lp.mode is not LoopMode.AUTO:
-                    lp.block.set_manual_mv(held)
+            held = lp.loop_shell.force(lp.slot, lp.mv)  # clamped to the loop's MV range
             if lp.mode is LoopMode.MANUAL:
                 lp.manual_mv = held
             elif lp.mode is LoopMode.REMOTE:

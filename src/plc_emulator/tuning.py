@@ -25,7 +25,7 @@ Ziegler-Nichols open loop (reaction curve) for a FOPDT model K e^{-theta s} / (t
     PI:  Kc = 0.9 tau / (K theta),  Ti = 3.33 theta
     PID: Kc = 1.2 tau / (K theta),  Ti = 2 theta,  Td = 0.5 theta
 
-Ideal (Kc, Ti, Td) to the velocity-form gains of ``plc_emulator.pid``::
+Ideal (Kc, Ti, Td) to the velocity-form gains of ``plc_emulator.pid`` (``tanklab.gains.LoopGains``)::
 
     Kp = Kc,   Ki = Kc / Ti,   Kd = Kc Td        (Ti = inf gives Ki = 0)
 """
@@ -39,6 +39,7 @@ from typing import Literal
 from tanklab.checks import finite as _finite
 from tanklab.checks import non_negative as _non_negative
 from tanklab.checks import positive as _positive
+from tanklab.gains import LoopGains
 
 __all__ = [
     "ImcTuning",
@@ -58,23 +59,9 @@ __all__ = [
 ZnKind = Literal["p", "pi", "pid"]
 
 
-@dataclass(frozen=True)
-class VelocityGains:
-    """Gains of the velocity-form PID ``du = Kp De + Ki Ts e + (Kd / Ts) D2e``.
-
-    Attributes
-    ----------
-    Kp : float
-        Proportional gain [MV unit per PV unit].
-    Ki : float
-        Integral gain [MV unit per (PV unit s)].
-    Kd : float
-        Derivative gain [MV unit s per PV unit].
-    """
-
-    Kp: float
-    Ki: float
-    Kd: float
+VelocityGains = LoopGains
+"""The velocity-form gains the rules produce: the kernel's `tanklab.gains.LoopGains` (this name
+is kept for callers; decision 0030)."""
 
 
 @dataclass(frozen=True)
@@ -95,7 +82,7 @@ class PidParams:
     Ti: float
     Td: float
 
-    def to_velocity(self) -> VelocityGains:
+    def to_velocity(self) -> LoopGains:
         """Return the velocity-form gains (Kp, Ki, Kd) = (Kc, Kc / Ti, Kc Td)."""
         return velocity_gains(self.Kc, self.Ti, self.Td)
 
@@ -174,7 +161,7 @@ class NlPiGains:
         _non_negative("Kl", self.Kl)
 
 
-def velocity_gains(Kc: float, Ti: float, Td: float = 0.0) -> VelocityGains:
+def velocity_gains(Kc: float, Ti: float, Td: float = 0.0) -> LoopGains:
     """Convert ideal PID parameters to velocity-form gains.
 
     Parameters
@@ -188,7 +175,7 @@ def velocity_gains(Kc: float, Ti: float, Td: float = 0.0) -> VelocityGains:
 
     Returns
     -------
-    VelocityGains
+    LoopGains
         ``Kp = Kc``, ``Ki = Kc / Ti``, ``Kd = Kc Td``.
     """
     kc = _finite("Kc", Kc)
@@ -198,7 +185,7 @@ def velocity_gains(Kc: float, Ti: float, Td: float = 0.0) -> VelocityGains:
     if math.isnan(ti) or ti <= 0.0:
         raise ValueError(f"Ti must be > 0 (inf for no integral action), got {ti}")
     td = _non_negative("Td", Td)
-    return VelocityGains(Kp=kc, Ki=0.0 if math.isinf(ti) else kc / ti, Kd=kc * td)
+    return LoopGains(kp=kc, ki=0.0 if math.isinf(ti) else kc / ti, kd=kc * td)
 
 
 def imc_from_taus(K: float, tau1: float, tau2: float, lam: float, *, pid: bool = True) -> ImcTuning:

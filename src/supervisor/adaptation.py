@@ -90,6 +90,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from supervisor.prior_rls import PriorRls
+from tanklab.gains import GainBox, PidGains  # the kernel's gain types, re-exported (decision 0030)
 from tanklab.rls import ExpForgettingRls
 
 __all__ = [
@@ -170,100 +171,8 @@ def _positive(value: float, name: str, *, allow_zero: bool = False) -> float:
 
 
 # --------------------------------------------------------------------------- value types
-@dataclass(frozen=True, eq=False)
-class PidGains:
-    """Velocity-form PID gains of all pumps, each an (n_u, n_loops) matrix.
-
-    Attributes
-    ----------
-    kp : ndarray, shape (n_u, n_loops)
-        Proportional gains [pump unit / error unit].
-    ki : ndarray, shape (n_u, n_loops)
-        Integral gains [pump unit / (error unit s)].
-    kd : ndarray, shape (n_u, n_loops)
-        Derivative gains [pump unit s / error unit].
-
-    The arrays are read-only float64 copies; values are not checked (a candidate may be
-    non-finite: the guards say so).
-    """
-
-    kp: FloatArray
-    ki: FloatArray
-    kd: FloatArray
-
-    def __post_init__(self) -> None:
-        arrays = []
-        for name in ("kp", "ki", "kd"):
-            arr = np.array(getattr(self, name), dtype=np.float64)
-            if arr.ndim != 2:
-                raise ValueError(f"{name} must be a 2-D (n_u, n_loops) matrix, got shape {arr.shape}")
-            arr.setflags(write=False)
-            arrays.append(arr)
-        if not (arrays[0].shape == arrays[1].shape == arrays[2].shape):
-            raise ValueError("kp, ki and kd must have the same shape (n_u, n_loops)")
-        for name, arr in zip(("kp", "ki", "kd"), arrays, strict=True):
-            object.__setattr__(self, name, arr)
-
-    @classmethod
-    def diagonal(cls, kp: ArrayLike, ki: ArrayLike, kd: ArrayLike) -> PidGains:
-        """Diagonal gains (pump i on loop i) from per-pump vectors of shape (n,)."""
-        return cls(np.diag(np.atleast_1d(kp)), np.diag(np.atleast_1d(ki)), np.diag(np.atleast_1d(kd)))
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """``(n_u, n_loops)``."""
-        return (int(self.kp.shape[0]), int(self.kp.shape[1]))
-
-    def stacked(self) -> FloatArray:
-        """Gains stacked as shape (3, n_u, n_loops): ``[kp, ki, kd]``."""
-        return np.stack([self.kp, self.ki, self.kd])
-
-    @classmethod
-    def from_stacked(cls, g: ArrayLike) -> PidGains:
-        """Inverse of :meth:`stacked`."""
-        arr = np.asarray(g, dtype=np.float64)
-        return cls(arr[0], arr[1], arr[2])
-
-    def is_finite(self) -> bool:
-        """True when every gain is finite."""
-        return bool(np.isfinite(self.stacked()).all())
-
-    def allclose(self, other: PidGains, *, rtol: float = 1e-12, atol: float = 0.0) -> bool:
-        """Element-wise ``numpy.allclose`` of all three matrices."""
-        return self.shape == other.shape and bool(
-            np.allclose(self.stacked(), other.stacked(), rtol=rtol, atol=atol)
-        )
-
-
-_GAIN_NAMES = ("Kp", "Ki", "Kd")
-
-
-@dataclass(frozen=True, eq=False)
-class GainBox:
-    """Per-gain admissible box ``lower <= gain <= upper`` (element-wise, may be infinite).
-
-    Attributes
-    ----------
-    lower, upper : PidGains
-        Bounds of the same shape as the gains; ``lower <= upper`` everywhere, no NaN.
-    """
-
-    lower: PidGains
-    upper: PidGains
-
-    def __post_init__(self) -> None:
-        if self.lower.shape != self.upper.shape:
-            raise ValueError("GainBox lower and upper must have the same shape")
-        lo, hi = self.lower.stacked(), self.upper.stacked()
-        if np.isnan(lo).any() or np.isnan(hi).any():
-            raise ValueError("GainBox bounds must not be NaN")
-        if (lo > hi).any():
-            raise ValueError("GainBox lower must be <= upper for every gain")
-
-    def contains(self, gains: PidGains) -> bool:
-        """True when every gain lies inside the box."""
-        g = gains.stacked()
-        return bool(((g >= self.lower.stacked()) & (g <= self.upper.stacked())).all())
+# PidGains and GainBox are tanklab.gains' (imported above); the model is the adaptation's own.
+_GAIN_NAMES = ("Kp", "Ki", "Kd")  # as the rejection messages name them
 
 
 @dataclass(frozen=True, eq=False)

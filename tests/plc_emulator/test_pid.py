@@ -395,8 +395,8 @@ def test_set_gains_validation_keeps_old_gains() -> None:
         pid.set_gains(["a"], [0.1], [0.0])
     assert pid.gains is old
     pid.set_gains([[2.0]], [0.2], [0.0])
-    assert pid.gains.Kp[0, 0] == 2.0
-    assert not pid.gains.Kp.flags.writeable
+    assert pid.gains.kp[0, 0] == 2.0
+    assert not pid.gains.kp.flags.writeable
 
 
 def test_gain_change_is_bumpless() -> None:
@@ -597,7 +597,7 @@ def test_mode_switch_never_jumps_more_than_auto_increment(
     # Diagonal gains so each actuator's AUTO increment is its own loop's (off-diagonal coupling
     # would move an actuator through another loop's error, which is not a switch bump).
     g = pid.gains
-    pid.set_gains(np.diag(np.diag(g.Kp)), np.diag(np.diag(g.Ki)), np.diag(np.diag(g.Kd)))
+    pid.set_gains(np.diag(np.diag(g.kp)), np.diag(np.diag(g.ki)), np.diag(np.diag(g.kd)))
     for (sp, pv), switch in zip(scans, switches, strict=False):
         u_prev = pid.mv
         switched = None
@@ -667,7 +667,7 @@ def test_setpoint_weight_change_is_bumpless_property(
     for j in range(2):
         pid.set_setpoint_weights(j, b=new[j], c=new[2 + j])
     assert pid.setpoint_weights[0].tolist() == new[:2] and pid.setpoint_weights[1].tolist() == new[2:]
-    sp, pv = list(pid._w_mem), list(pid._y_mem)
+    sp, pv = pid.law.memory
     res, ref = pid.step(sp, pv), twin.step(sp, pv)
     if np.array_equal(res.working_sp, sp):  # (a setpoint ramp still under way moves w itself)
         for name in ("mv", "p", "i", "d"):
@@ -675,10 +675,9 @@ def test_setpoint_weight_change_is_bumpless_property(
         assert np.all(res.p == 0.0)
 
 
-# --------------------------------------------------------------------------- single-loop fast path
-# A one-loop block computes on Python floats (the module docstring's "single-loop fast path");
-# setting ``_scalar = False`` makes it run the n-loop numpy path instead. The two must agree on
-# every output whatever the configuration, gains, requests and PV history.
+# --------------------------------------------------------------------------- float and array entry points
+# `Pid.step_siso` (floats) and `Pid.step` (arrays) are two containers of the same scan: they must
+# agree on every output whatever the configuration, gains, requests and PV history.
 huge = st.sampled_from([1e308, -1e308])  # SP - PV overflows: e = inf, then inf - inf (the NaN hold)
 wide = st.one_of(finite, huge)
 pv_value = st.one_of(finite, huge, st.sampled_from([math.nan, math.inf, -math.inf]))
@@ -696,7 +695,7 @@ one_loop_action = st.one_of(
 
 @st.composite
 def one_loop_pair(draw: st.DrawFn, lows: st.SearchStrategy[float] | None = None) -> tuple[Pid, Pid]:
-    """Two identical one-loop blocks; the second forced onto the numpy path."""
+    """Two identical one-loop blocks."""
     lo = draw(st.floats(-100.0, 0.0) if lows is None else lows)
     hi = lo + draw(st.floats(0.01, 100.0))
     sp_lo = draw(st.one_of(st.just(-math.inf), st.floats(-1e3, 0.0)))
@@ -722,21 +721,21 @@ def one_loop_pair(draw: st.DrawFn, lows: st.SearchStrategy[float] | None = None)
         setpoint_weight_d=draw(weight),
     )
     gains = PidGains.diagonal([draw(gain)], [draw(gain)], [draw(gain)])
-    fast, ref = Pid(cfg, gains), Pid(cfg, gains)
-    ref._scalar = False
-    return fast, ref
+    return Pid(cfg, gains), Pid(cfg, gains)
 
 
 def _same(fast: Any, ref: Any, what: str) -> None:
-    """Exactly equal (NaN where NaN). Only the sign of a zero may differ: a 1 x 1 product on the
-    numpy path adds to +0.0 (0 + (-0.0) = +0.0), the float path's single multiply keeps -0.0."""
+    """Exactly equal (NaN where NaN; the sign of a zero is not compared here: the first-form
+    tests below compare bits)."""
     np.testing.assert_array_equal(np.asarray(fast, dtype=float), np.asarray(ref, dtype=float), err_msg=what)
 
 
 @pytest.mark.parametrize("entry", ["step", "step_siso"])
 @settings(max_examples=300, deadline=None)
 @given(pair=one_loop_pair(), actions=st.lists(one_loop_action, min_size=1, max_size=60))
-def test_scalar_fast_path_matches_numpy_path(entry: str, pair: tuple[Pid, Pid], actions: list[Any]) -> None:
+def test_float_entry_point_matches_array_entry_point(
+    entry: str, pair: tuple[Pid, Pid], actions: list[Any]
+) -> None:
     fast, ref = pair
     for action in actions:
         kind = action[0]
@@ -786,52 +785,89 @@ def test_scalar_fast_path_matches_numpy_path(entry: str, pair: tuple[Pid, Pid], 
         assert fast.modes == ref.modes
 
 
-def _reference_step_one(pid: Pid, sp: float, pv: float, pv_good: bool) -> PidLoopStep:
-    """The float path as first written (builtin min/max, the NamedTuple's constructor), on the
-    block's own state: the oracle that the written-out clamps of `Pid._step_one` change no bit."""
-    lo, hi, du_max, sp_lo, sp_hi, sp_step, sign, alpha, ts, n_bad, subst_value, subst_mv = pid._one
-    kp, ki, kd = pid._one_gains
-    b, c = pid._b[0], pid._c[0]
-    good = pv_good and math.isfinite(pv)
-    target = min(max(sp, sp_lo), sp_hi)
-    if pid._started:
-        w = pid._w[0] + min(max(target - pid._w[0], -sp_step), sp_step)
-    else:
-        w = target
-        pid._started = True
-    pid._w[0] = w
-    bad_count = 0 if good else pid._bad_count[0] + 1
-    pid._bad_count[0] = bad_count
-    d_prev = pid._d_prev[0]
-    if good:
-        e = sign * (w - pv)
-        if pid._needs_init[0]:
-            w_mem, y_mem, d_prev = w, pv, 0.0
+class _FirstForm:
+    """The one-loop scan as first written (builtin min/max, the NamedTuple's constructor) with
+    its own state, built from a block's public config and gains: the oracle the block must match
+    bit for bit."""
+
+    def __init__(self, pid: Pid) -> None:
+        cfg = pid.config
+        self.ts = float(cfg.ts_s)
+        self.lo, self.hi = float(cfg.u_min), float(cfg.u_max)  # type: ignore[arg-type]
+        self.du_max = math.inf if cfg.du_max is None else float(cfg.du_max)  # type: ignore[arg-type]
+        self.sp_lo, self.sp_hi = float(cfg.sp_min), float(cfg.sp_max)  # type: ignore[arg-type]
+        self.sp_step = math.inf if cfg.sp_rate is None else float(cfg.sp_rate) * self.ts  # type: ignore[arg-type]
+        self.sign = -1.0 if cfg.direct_acting else 1.0
+        tf = float(cfg.d_filter_tf_s)
+        self.alpha = tf / (tf + self.ts)
+        self.n_bad = cfg.pv_bad_scans
+        self.subst_value = cfg.substitute == "value"
+        self.subst_mv = float(cfg.substitute_mv)  # type: ignore[arg-type]
+        self.b, self.c = float(cfg.setpoint_weight_p), float(cfg.setpoint_weight_d)  # type: ignore[arg-type]
+        self.kp, self.ki, self.kd = (float(m[0, 0]) for m in (pid.gains.kp, pid.gains.ki, pid.gains.kd))
+        self.u = self.manual = self.remote = float(cfg.initial_mv)  # type: ignore[arg-type]
+        self.mode = cfg.initial_mode
+        self.w, self.started = 0.0, False
+        self.w_mem = self.y_mem = self.d_prev = 0.0
+        self.needs_init = cfg.init_memory == "first_error"
+        self.bad_count = 0
+
+    def clamp(self, value: float) -> float:
+        return float(min(max(value, self.lo), self.hi))
+
+    def set_mode(self, mode: LoopMode, mv: float | None) -> None:
+        if mode is not AUTO:
+            held = self.u if mv is None else self.clamp(mv)
+            if mode is MANUAL and (self.mode is not MANUAL or mv is not None):
+                self.manual = held
+            if mode is REMOTE and (self.mode is not REMOTE or mv is not None):
+                self.remote = held
+        self.mode = mode
+
+    def weights(self, b: float | None, c: float | None) -> None:
+        self.b = self.b if b is None else float(b)
+        self.c = self.c if c is None else float(c)
+
+    def step(self, sp: float, pv: float, pv_good: bool) -> PidLoopStep:
+        sign, alpha, ts = self.sign, self.alpha, self.ts
+        good = pv_good and math.isfinite(pv)
+        target = min(max(sp, self.sp_lo), self.sp_hi)
+        if self.started:
+            w = self.w + min(max(target - self.w, -self.sp_step), self.sp_step)
         else:
-            w_mem, y_mem = pid._w_mem[0], pid._y_mem[0]
-        e_used = e
-        de_p = sign * (b * w - pv) - sign * (b * w_mem - y_mem)
-        de_d = sign * (c * w - pv) - sign * (c * w_mem - y_mem)
-        d_new = alpha * d_prev + (1.0 - alpha) * de_d / ts
-    else:
-        e, e_used, de_p, d_new = math.nan, 0.0, 0.0, d_prev
-    p, i, d = kp * de_p, ki * (ts * e_used), kd * (d_new - d_prev)
-    u_prev = pid._u[0]
-    mode = pid._modes[0]
-    raw = u_prev + p + i + d if mode is AUTO else pid._remote[0] if mode is REMOTE else pid._manual[0]
-    substituted = not good and bad_count >= n_bad and mode is not MANUAL
-    if substituted:
-        raw = subst_mv if subst_value else u_prev
-    if math.isnan(raw):
-        raw = u_prev
-    limited = min(max(raw, u_prev - du_max), u_prev + du_max)
-    u = min(max(limited, lo), hi)
-    pid._u[0] = u
-    if good:
-        pid._w_mem[0], pid._y_mem[0] = w, pv
-    pid._d_prev[0] = d_new
-    pid._needs_init[0] = not good
-    return PidLoopStep(u, w, e, p, i, d, u != limited, limited != raw, good, substituted, mode)
+            w = target
+            self.started = True
+        self.w = w
+        self.bad_count = 0 if good else self.bad_count + 1
+        d_prev = self.d_prev
+        if good:
+            e = sign * (w - pv)
+            if self.needs_init:
+                w_mem, y_mem, d_prev = w, pv, 0.0
+            else:
+                w_mem, y_mem = self.w_mem, self.y_mem
+            e_used = e
+            de_p = sign * (self.b * w - pv) - sign * (self.b * w_mem - y_mem)
+            de_d = sign * (self.c * w - pv) - sign * (self.c * w_mem - y_mem)
+            d_new = alpha * d_prev + (1.0 - alpha) * de_d / ts
+        else:
+            e, e_used, de_p, d_new = math.nan, 0.0, 0.0, d_prev
+        p, i, d = self.kp * de_p, self.ki * (ts * e_used), self.kd * (d_new - d_prev)
+        u_prev, mode = self.u, self.mode
+        raw = u_prev + p + i + d if mode is AUTO else self.remote if mode is REMOTE else self.manual
+        substituted = not good and self.bad_count >= self.n_bad and mode is not MANUAL
+        if substituted:
+            raw = self.subst_mv if self.subst_value else u_prev
+        if math.isnan(raw):
+            raw = u_prev
+        limited = min(max(raw, u_prev - self.du_max), u_prev + self.du_max)
+        u = min(max(limited, self.lo), self.hi)
+        self.u = u
+        if good:
+            self.w_mem, self.y_mem = w, pv
+        self.d_prev = d_new
+        self.needs_init = not good
+        return PidLoopStep(u, w, e, p, i, d, u != limited, limited != raw, good, substituted, mode)
 
 
 def _bits(x: object) -> object:
@@ -852,34 +888,42 @@ corner_action = st.one_of(
 
 
 def _replay_against_reference(fast: Pid, ref: Pid, actions: list[Any]) -> None:
-    """Apply ``actions`` to both blocks, ``fast`` scanning through `Pid.step_siso` and ``ref``
-    through `_reference_step_one`; every result and all state must agree bit for bit."""
-    ref._scalar = True  # the reference runs on the same float state
+    """Apply ``actions`` to ``fast``, scanning through `Pid.step_siso`, and to the first form
+    built from ``ref``'s config and gains; every result and all public state must agree bit for
+    bit."""
+    oracle = _FirstForm(ref)
     for action in actions:
         kind = action[0]
         if kind == "scan":
             _, sp, pv, good = action
             pv = sp if pv is None else pv  # a zero error
-            got, expected = fast.step_siso(sp, pv, good), _reference_step_one(ref, sp, pv, good)
+            got, expected = fast.step_siso(sp, pv, good), oracle.step(sp, pv, good)
             assert type(got) is PidLoopStep
             assert [_bits(x) for x in got] == [_bits(x) for x in expected], action
         elif kind == "mode":
             mv = None if action[1] is AUTO else action[2]
             fast.set_mode(0, action[1], mv)
-            ref.set_mode(0, action[1], mv)
+            oracle.set_mode(action[1], mv)
         elif kind == "gains":
             fast.set_gains(*([g] for g in action[1:]))
-            ref.set_gains(*([g] for g in action[1:]))
+            oracle.kp, oracle.ki, oracle.kd = (float(g) for g in action[1:])
         elif kind == "weights":
             fast.set_setpoint_weights(0, *action[1:])
-            ref.set_setpoint_weights(0, *action[1:])
+            oracle.weights(*action[1:])
+        elif kind == "manual":
+            fast.set_manual_mv(0, action[1])
+            oracle.manual = oracle.clamp(action[1])
+        elif kind == "remote":
+            fast.set_remote_mv(0, action[1])
+            oracle.remote = oracle.clamp(action[1])
         else:
-            verb = {"manual": Pid.set_manual_mv, "remote": Pid.set_remote_mv, "track": Pid.track}[kind]
-            verb(fast, 0, action[1])
-            verb(ref, 0, action[1])
-        for name in ("_u", "_w", "_w_mem", "_y_mem", "_d_prev", "_manual", "_remote", "_b", "_c"):
-            assert [_bits(x) for x in getattr(fast, name)] == [_bits(x) for x in getattr(ref, name)], name
-        assert fast._bad_count == ref._bad_count and fast._needs_init == ref._needs_init
+            fast.track(0, action[1])
+            oracle.u = oracle.clamp(action[1])
+        b, c = fast.setpoint_weights
+        state = (fast.mv[0], fast.working_sp[0], fast.manual_mv[0], fast.remote_mv[0], b[0], c[0])
+        expected_state = (oracle.u, oracle.w, oracle.manual, oracle.remote, oracle.b, oracle.c)
+        assert [_bits(float(x)) for x in state] == [_bits(x) for x in expected_state]
+        assert int(fast.pv_bad_count[0]) == oracle.bad_count and fast.modes == (oracle.mode,)
 
 
 @settings(max_examples=300, deadline=None)

@@ -23,8 +23,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from plc_emulator.program import RUNTIME_OWNED_TAGS, GainStatus, PlcProgram, ScanInputs, ScanOutputs
-from tanklab.config import PidGainsSpec, SiteConfig, site_from_mapping
+from tanklab.config import SiteConfig, site_from_mapping
 from tanklab.enums import GainSource, LoopMode
+from tanklab.gains import LoopGains
 from tanklab.tags import identity_paths, plc_tags
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -286,7 +287,7 @@ def test_staged_gains_take_effect_exactly_at_the_next_scan_boundary() -> None:
     # Nothing changes before the boundary: applied gains, source, published values, block gains.
     assert lp.applied is not None and (lp.applied.kp, lp.applied.ki, lp.applied.kd) == (KP1, KI1, KD1)
     assert lp.source is FIXED and rig.plc.values()["PLC.LIC1.Kp"] == KP1
-    assert lp.pid is not None and lp.pid.gains.Ki[0, 0] == KI1
+    assert lp.pid is not None and lp.pid.gains.ki[0, 0] == KI1
     u_before = lp.mv
     out = rig.scan(levels)
     # The very next scan runs with all three new gains: constant e, so dMV = Ki_new Ts e = 2e-7.
@@ -536,9 +537,11 @@ def test_an_engineer_hold_survives_a_warm_restart() -> None:
     new = Rig(energies())
     assert new.plc.restore_retained(saved) == []
     lp = new.plc.loop("LIC1")
-    assert lp.source is ENGINEER and lp.applied == PidGainsSpec(kp=1e-3, ki=2e-5, kd=0.0)
+    assert lp.source is ENGINEER and lp.applied == LoopGains(kp=1e-3, ki=2e-5, kd=0.0)
     fixed = energies().plc
-    assert fixed is not None and lp.last_accepted == fixed.loops[0].gains  # not the supervisor's
+    assert fixed is not None and lp.last_accepted == LoopGains.of_spec(
+        fixed.loops[0].gains
+    )  # not the supervisor's
     assert not new.plc.mode_change_pending("LIC1")  # a restored mode is no change in progress
     new.trust([0.4, 0.2, 0.3])
     assert new.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE  # still held
@@ -1014,9 +1017,9 @@ def test_random_requests_keep_every_invariant(seq: list[tuple[Any, Any, Any]], f
                 out.values[f"PLC.{lp.spec.name}.Kd"],
             )
             assert g in admitted[lp.spec.name]  # a whole admitted set, never a mix
-            assert lp.pid is not None and lp.pid_index is not None
-            i = lp.pid_index
-            assert (lp.pid.gains.Kp[i, i], lp.pid.gains.Ki[i, i], lp.pid.gains.Kd[i, i]) == g
+            assert lp.pid is not None
+            i = lp.slot
+            assert (lp.pid.gains.kp[i, i], lp.pid.gains.ki[i, i], lp.pid.gains.kd[i, i]) == g
         # ENGINEER gains change only by an engineer's or operator's own request (never the
         # watchdog, never the supervisor).
         for name, before in held.items():
@@ -1138,7 +1141,7 @@ def test_warm_restart_restores_sp_mode_gains_and_trips() -> None:
     old.set_sp("LIC1", 0.45)
     old.set_mode("LIC2", LoopMode.MANUAL)
     old.set_manual_mv("LIC2", 2e-5)
-    old.loop("LIC1").applied = PidGainsSpec(kp=8e-4, ki=9e-6, kd=-1e-4)
+    old.loop("LIC1").applied = LoopGains(kp=8e-4, ki=9e-6, kd=-1e-4)
     old.loop("LIC1").source = GainSource.SUPERVISOR
     old.interlocks[0].tripped = True
     saved = old.retained()
@@ -1146,7 +1149,7 @@ def test_warm_restart_restores_sp_mode_gains_and_trips() -> None:
     assert new.restore_retained(saved) == []
     assert new.loop("LIC1").sp_m == 0.45
     assert new.loop("LIC2").mode is LoopMode.MANUAL and new.loop("LIC2").manual_mv == 2e-5
-    assert new.loop("LIC1").applied == PidGainsSpec(kp=8e-4, ki=9e-6, kd=-1e-4)
+    assert new.loop("LIC1").applied == LoopGains(kp=8e-4, ki=9e-6, kd=-1e-4)
     assert new.loop("LIC1").source is GainSource.SUPERVISOR
     assert new.interlocks[0].tripped
     # A retained value that fails today's checks keeps the cold-start value and is reported.
@@ -1156,28 +1159,29 @@ def test_warm_restart_restores_sp_mode_gains_and_trips() -> None:
     skipped = other.restore_retained(saved)
     assert len(skipped) == 2
     assert other.loop("LIC1").sp_m == 0.4
-    assert other.loop("LIC2").applied == site.plc.loops[1].gains
+    assert other.loop("LIC2").applied == LoopGains.of_spec(site.plc.loops[1].gains)
 
 
-# =========================================================================== the PID's float path
+# =========================================================================== one MIMO shell or two
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(requests, min_size=1, max_size=60))
-def test_pid_float_path_scans_like_the_numpy_path(seq: list[tuple[Any, Any, Any]]) -> None:
-    # The scan runs each one-loop PID group through Pid.step_siso (floats); a second program
-    # whose groups go through Pid.step on arrays, with the blocks on their n-loop numpy path (the
-    # array path every group took before the fast path), must publish and command the same, scan
-    # for scan, under any request sequence (ramps, rate limits, substitutes, frozen PVs, trips).
+def test_zero_cross_gains_scan_like_two_single_loops(seq: list[tuple[Any, Any, Any]]) -> None:
+    # The scan runs each group of loops through one shell and one PID law: two decentralised
+    # loops as two one-loop groups; coupled by cross gains of zero, as one 2 x 2 group. The two
+    # programs must publish and command the same, scan for scan, under any request sequence
+    # (ramps, rate limits, substitutes, frozen PVs, trips): the n-loop law sums the same products.
     def mutate(d: dict[str, Any]) -> None:
         d["plc"]["pv_frozen_scans"] = 2
-        d["plc"]["loops"][0].update(du_max=2e-5, sp_ramp_m_s=0.002, error_unit="cm")
+        d["plc"]["loops"][0].update(du_max=2e-5, sp_ramp_m_s=0.002, error_unit="cm", pv_bad_scans=2)
         d["plc"]["loops"][1].update(substitute="value", substitute_mv=3e-5, pv_bad_scans=2)
 
-    site = energies(mutate)
-    fast, ref = PlcProgram(site), PlcProgram(site)
-    assert all(group.scalar for group in fast.pid_groups)
-    for group in ref.pid_groups:
-        group.scalar = False
-        group.block._scalar = False
+    def coupled(d: dict[str, Any]) -> None:
+        mutate(d)
+        d["plc"]["loops"][0]["cross_gains"] = {"LIC2": {"kp": 0.0, "ki": 0.0, "kd": 0.0}}
+
+    fast, ref = PlcProgram(energies(mutate)), PlcProgram(energies(coupled))
+    assert [len(g.loops) for g in fast.pid_groups] == [1, 1]
+    assert [len(g.loops) for g in ref.pid_groups] == [2]
     t, beat = 0.0, 0
 
     def scan(levels: tuple[float, ...], quality: str) -> None:
