@@ -1,8 +1,9 @@
 """The plant's OPC UA server: the contract's plant nodes over a :class:`PlantSimulator`.
 
 Client writes go through :class:`tanklab.ua.WriteGuard` (type, finiteness, EURange, enum,
-status) and then through the simulator's own setters, so a refused write never reaches the
-model and the node keeps its old value. ``Plant.Sim.Advance(seconds, commands)`` is the
+status) and then through the simulator's own setters, one handler per writable tag
+(:meth:`PlantServer.write_handlers`), so a refused write never reaches the model and the node
+keeps its old value. ``Plant.Sim.Advance(seconds, commands)`` is the
 lock-step entry point: it writes the pump commands, integrates and answers the new time and
 transmitter readings in one round trip; outside lock-step it answers BadInvalidState.
 """

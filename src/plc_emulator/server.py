@@ -1,8 +1,10 @@
 """The PLC's OPC UA server: the contract's PLC nodes over a :class:`PlcProgram`.
 
-Writes to ``SP``, ``Mode``, ``ManualMV``, ``RemoteMV`` and ``Supervisor.Heartbeat`` pass the
-contract's checks (:class:`tanklab.ua.WriteGuard`: type, finiteness, EURange, enum) and then
-the program's own (a refused write answers a Bad status and the old value stays).
+Writes to ``SP``, ``SPLow``, ``SPHigh``, ``Mode``, ``ManualMV``, ``RemoteMV`` and
+``Supervisor.Heartbeat`` pass the contract's checks (:class:`tanklab.ua.WriteGuard`: type,
+finiteness, EURange, enum) and then the program's own, through the tag's own handler
+(:meth:`PlcServer.write_handlers` over :func:`plc_emulator.writes.program_writes`; a refused
+write answers a Bad status and the old value stays).
 ``LIC{j}.SetGains(Kp, Ki, Kd)`` validates all three and stages them for the next scan
 boundary: BadOutOfRange (not finite or outside the gain box), BadTypeMismatch (wrong argument
 types, checked by the adapter), BadInvalidState (a block without PID gains; for the supervisor's
