@@ -1,8 +1,9 @@
 """The plant's OPC UA server: the contract's plant nodes over a :class:`PlantSimulator`.
 
 Client writes go through :class:`tanklab.ua.WriteGuard` (type, finiteness, EURange, enum,
-status) and then through the simulator's own setters, so a refused write never reaches the
-model and the node keeps its old value. ``Plant.Sim.Advance(seconds, commands)`` is the
+status) and then through the simulator's own setters, one handler per writable tag
+(:meth:`PlantServer.write_handlers`), so a refused write never reaches the model and the node
+keeps its old value. ``Plant.Sim.Advance(seconds, commands)`` is the
 lock-step entry point: it writes the pump commands, integrates and answers the new time and
 transmitter readings in one round trip; outside lock-step it answers BadInvalidState.
 """
@@ -10,16 +11,20 @@ transmitter readings in one round trip; outside lock-step it answers BadInvalidS
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
 from asyncua import ua
 
 from plant_sim.plant import PlantSimulator
+from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.enums import SensorFault
+from tanklab.handlers import HandlerTable
 from tanklab.tags import Tag, plant_tags, tags_by_path
-from tanklab.ua import Publisher
+from tanklab.ua import MethodHandler, Publisher, WriteHandler
 from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
@@ -71,8 +76,8 @@ class PlantServer:
             name="tanklab plant simulator",
             security=self.security,
             tags=self.tags,
-            on_write=self._on_write,
-            methods={"Plant.Sim.Advance": self._advance},
+            writes=self.write_handlers(),
+            methods=self.method_handlers(),
         )
         self.publisher = self.tier.publisher
         # The writable nodes were built with the config's initial values; a resumed simulator
@@ -89,33 +94,62 @@ class PlantServer:
 
     # ---- writes -------------------------------------------------------------------------
 
-    def _on_write(self, tag: Tag, value: Any) -> ua.StatusCode | None:
-        """Apply a validated write to the simulator; refuse what the simulator refuses."""
-        parts = tag.path.split(".")
-        obj, item = parts[1], parts[2]
-        try:
-            if item == "Command":
-                self.sim.set_command(obj, value)
-            elif item == "Leak":
-                self.sim.set_leak(obj, value)
-            elif item == "Opening":
-                self.sim.set_valve(obj, value)
-            elif item == "Disturbance":
-                self.sim.set_disturbance(obj, value)
-            elif item == "Fault":
-                self.sim.set_fault(obj, SensorFault(value))
-            elif item == "FaultValue":
-                self.sim.set_fault(obj, self.sim.transmitters.fault[int(obj[2:]) - 1], value)
-            else:
-                return ua.StatusCode(ua.StatusCodes.BadNotWritable)
-        except (ValueError, KeyError) as e:
-            log.info("write to %s refused by the model: %s", tag.path, e)
-            return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
-        if item != "Command":
+    def write_handlers(self) -> HandlerTable[WriteHandler]:
+        """The handler of each writable plant variable: the simulator setter it goes to."""
+        sim = self.sim
+        table: HandlerTable[WriteHandler] = HandlerTable()
+        for i, name in enumerate(sim.net.tank_names):
+            tank, lt = paths.plant.tank(name), paths.plant.lt(name)
+            table.on(tank.leak, self._setting(partial(sim.set_leak, name)))
+            table.on(tank.disturbance, self._setting(partial(sim.set_disturbance, name)))
+            table.on(lt.fault, self._setting(partial(self._set_fault, lt.name)))
+            table.on(lt.fault_value, self._setting(partial(self._set_fault_value, lt.name, i)))
+        for name in sim.net.valve_names:
+            table.on(paths.plant.valve_opening(name), self._setting(partial(sim.set_valve, name)))
+        for name in sim.net.pump_names:
+            table.on(paths.plant.pump(name).command, self._command(name))
+        return table
+
+    def method_handlers(self) -> HandlerTable[MethodHandler]:
+        """The handler of each plant method (``Plant.Sim.Advance``)."""
+        table: HandlerTable[MethodHandler] = HandlerTable()
+        table.on(paths.plant.sim_advance, self._advance)
+        return table
+
+    def _set_fault(self, transmitter: str, value: Any) -> None:
+        self.sim.set_fault(transmitter, SensorFault(value))
+
+    def _set_fault_value(self, transmitter: str, index: int, value: Any) -> None:
+        self.sim.set_fault(transmitter, self.sim.transmitters.fault[index], value)
+
+    def _setting(self, apply: Callable[[Any], None]) -> WriteHandler:
+        """An operator's setting: applied by the simulator (which may refuse it), then an event."""
+
+        def handler(tag: Tag, value: Any) -> ua.StatusCode | None:
+            try:
+                apply(value)
+            except (ValueError, KeyError) as e:
+                log.info("write to %s refused by the model: %s", tag.path, e)
+                return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
             self.settings_changed = True
-        # Pump commands arrive every scan: worth a debug line; an operator's write is an event.
-        log.log(logging.DEBUG if item == "Command" else logging.INFO, "%s := %r", tag.path, value)
-        return None
+            log.info("%s := %r", tag.path, value)
+            return None
+
+        return handler
+
+    def _command(self, pump: str) -> WriteHandler:
+        """A pump command: arrives every scan, so worth a debug line only."""
+
+        def handler(tag: Tag, value: Any) -> ua.StatusCode | None:
+            try:
+                self.sim.set_command(pump, value)
+            except (ValueError, KeyError) as e:
+                log.info("write to %s refused by the model: %s", tag.path, e)
+                return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
+            log.debug("%s := %r", tag.path, value)
+            return None
+
+        return handler
 
     async def _advance(self, seconds: float, commands: list[float]) -> list[ua.Variant] | ua.StatusCode:
         if not self.lockstep:
@@ -144,14 +178,15 @@ class PlantServer:
         u = sim.inputs
         values: dict[str, Any] = {}
         for i, name in enumerate(sim.net.tank_names):
-            values[f"Plant.{name}.Leak"] = float(u.leak_openings[i])
-            values[f"Plant.{name}.Disturbance"] = float(u.disturbances_m3_s[i])
-            values[f"Plant.LT{name[1:]}.Fault"] = int(sim.transmitters.fault[i])
-            values[f"Plant.LT{name[1:]}.FaultValue"] = float(sim.transmitters.fault_value[i])
+            tank, lt = paths.plant.tank(name), paths.plant.lt(name)
+            values[tank.leak] = float(u.leak_openings[i])
+            values[tank.disturbance] = float(u.disturbances_m3_s[i])
+            values[lt.fault] = int(sim.transmitters.fault[i])
+            values[lt.fault_value] = float(sim.transmitters.fault_value[i])
         for k, name in enumerate(sim.net.valve_names):
-            values[f"Plant.{name}.Opening"] = float(u.valve_openings[k])
+            values[paths.plant.valve_opening(name)] = float(u.valve_openings[k])
         for j, name in enumerate(sim.net.pump_names):
-            values[f"Plant.{name}.Command"] = float(sim.commands[j])
+            values[paths.plant.pump(name).command] = float(sim.commands[j])
         return {p: v for p, v in values.items() if p in self.by_path}
 
     def snapshot_values(self) -> dict[str, Any]:
@@ -162,21 +197,23 @@ class PlantServer:
         lsh, lsl = sim.switches()
         flows = sim.flows()
         for i, name in enumerate(sim.net.tank_names):
-            values[f"Plant.{name}.Level"] = float(levels[i])
-            values[f"Plant.{name}.LSH"] = bool(lsh[i])
-            values[f"Plant.{name}.LSL"] = bool(lsl[i])
-            values[f"Plant.LT{name[1:]}.PV"] = float(sim.readings[i])
+            tank = paths.plant.tank(name)
+            values[tank.level] = float(levels[i])
+            values[tank.lsh] = bool(lsh[i])
+            values[tank.lsl] = bool(lsl[i])
+            values[paths.plant.lt(name).pv] = float(sim.readings[i])
         for j, name in enumerate(sim.net.pump_names):
-            values[f"Plant.{name}.Flow"] = float(flows.pumps[j])
+            values[paths.plant.pump(name).flow] = float(flows.pumps[j])
         bal = sim.balance()
-        values["Plant.Balance.In"] = bal.v_in
-        values["Plant.Balance.Out"] = bal.v_out
-        values["Plant.Balance.Leaked"] = bal.v_leaked
-        values["Plant.Balance.Spilled"] = bal.v_spilled
-        values["Plant.Balance.Stored"] = bal.v_stored
-        values["Plant.Balance.Error"] = bal.error
-        values["Plant.Sim.Time"] = sim.t_s
-        values["Plant.Sim.Watchdog"] = bool(sim.watchdog_tripped)
+        balance = paths.plant.balance
+        values[balance("In")] = bal.v_in
+        values[balance("Out")] = bal.v_out
+        values[balance("Leaked")] = bal.v_leaked
+        values[balance("Spilled")] = bal.v_spilled
+        values[balance("Stored")] = bal.v_stored
+        values[balance("Error")] = bal.error
+        values[paths.plant.sim_time] = sim.t_s
+        values[paths.plant.sim_watchdog] = bool(sim.watchdog_tripped)
         return values
 
     async def publish(self) -> None:
@@ -187,4 +224,4 @@ class PlantServer:
     async def publish_speed(self, speed: float) -> None:
         """Publish the speed factor (0 in lock-step)."""
         assert self.publisher is not None
-        await self.publisher.publish({"Plant.Sim.Speed": speed})
+        await self.publisher.publish({paths.plant.sim_speed: speed})

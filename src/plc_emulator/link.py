@@ -19,6 +19,7 @@ import numpy as np
 from asyncua import ua
 from numpy.typing import NDArray
 
+from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
 from tanklab.tags import plant_tags, tags_by_path
@@ -40,10 +41,10 @@ class FieldLink:
 
     def __init__(self, site: SiteConfig, url: str, *, setup: ClientSetup, timeout_s: float = 2.0) -> None:
         self.site = site
-        tags = tags_by_path(plant_tags(site))
-        self.lt_paths = [f"Plant.LT{t[1:]}.PV" for t in site.tank_names]
-        self.cmd_paths = [f"Plant.{p}.Command" for p in site.pump_names]
-        needed = {p: tags[p] for p in self.lt_paths + self.cmd_paths + ["Plant.Sim.Advance"]}
+        contract = tags_by_path(plant_tags(site))
+        self.lt_paths = [paths.plant.lt(t).pv for t in site.tank_names]
+        self.cmd_paths = [paths.plant.pump(p).command for p in site.pump_names]
+        needed = {p: contract[p] for p in [*self.lt_paths, *self.cmd_paths, paths.plant.sim_advance]}
         self.link = Link(
             url, needed, name="field", setup=setup, timeout_s=timeout_s, failure_level=logging.WARNING
         )
@@ -118,12 +119,12 @@ class FieldLink:
             return None
         try:
             out = await self.link.call(
-                "Plant.Sim.Advance",
+                paths.plant.sim_advance,
                 ua.Variant(float(seconds), ua.VariantType.Double),
                 ua.Variant([float(c) for c in commands], ua.VariantType.Double, is_array=True),
             )
         except (LinkError, ua.UaStatusCodeError) as e:
-            log.warning("Plant.Sim.Advance failed: %s", e)
+            log.warning("%s failed: %s", paths.plant.sim_advance, e)
             return None
         t, levels = float(out[0]), np.asarray(out[1], dtype=float)
         return t, FieldReadings(levels, np.ones(len(levels), dtype=bool))

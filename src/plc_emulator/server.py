@@ -1,8 +1,10 @@
 """The PLC's OPC UA server: the contract's PLC nodes over a :class:`PlcProgram`.
 
-Writes to ``SP``, ``Mode``, ``ManualMV``, ``RemoteMV`` and ``Supervisor.Heartbeat`` pass the
-contract's checks (:class:`tanklab.ua.WriteGuard`: type, finiteness, EURange, enum) and then
-the program's own (a refused write answers a Bad status and the old value stays).
+Writes to ``SP``, ``SPLow``, ``SPHigh``, ``Mode``, ``ManualMV``, ``RemoteMV`` and
+``Supervisor.Heartbeat`` pass the contract's checks (:class:`tanklab.ua.WriteGuard`: type,
+finiteness, EURange, enum) and then the program's own, through the tag's own handler
+(:meth:`PlcServer.write_handlers` over :func:`plc_emulator.writes.program_writes`; a refused
+write answers a Bad status and the old value stays).
 ``LIC{j}.SetGains(Kp, Ki, Kd)`` validates all three and stages them for the next scan
 boundary: BadOutOfRange (not finite or outside the gain box), BadTypeMismatch (wrong argument
 types, checked by the adapter), BadInvalidState (a block without PID gains; for the supervisor's
@@ -25,11 +27,13 @@ from typing import Any
 from asyncua import ua
 
 from plc_emulator.program import GainStatus, PlcProgram
-from plc_emulator.writes import apply_write
+from plc_emulator.writes import ProgramWrite, program_writes
+from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource
+from tanklab.handlers import HandlerTable
 from tanklab.tags import HEARTBEAT_PATH, Role, Tag, plc_tags, tags_by_path
-from tanklab.ua import CURRENT_USER, MethodHandler, Publisher, TankUser
+from tanklab.ua import CURRENT_USER, MethodHandler, Publisher, TankUser, WriteHandler
 from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
@@ -62,22 +66,19 @@ class PlcServer:
 
     async def start(self) -> None:
         """Initialise, secure, build the address space and start listening."""
-        methods: dict[str, MethodHandler] = {"PLC.Interlock.Reset": self._reset}
-        for lp in self.program.loops:
-            methods[f"PLC.{lp.spec.name}.SetGains"] = self._set_gains_for(lp.spec.name)
-            methods[f"PLC.{lp.spec.name}.ResetGains"] = self._reset_gains_for(lp.spec.name)
-            methods[f"PLC.{lp.spec.name}.ReleaseGains"] = self._release_gains_for(lp.spec.name)
         self.tier = await start_tier_server(
             "plc",
             url=self.url,
             name="tanklab soft PLC",
             security=self.security,
             tags=self.tags,
-            on_write=self._on_write,
-            methods=methods,
+            writes=self.write_handlers(),
+            methods=self.method_handlers(),
         )
         self.publisher = self.tier.publisher
-        static: dict[str, Any] = {f"PLC.{lp.spec.name}.Block": lp.spec.block for lp in self.program.loops}
+        static: dict[str, Any] = {
+            paths.plc.loop(lp.spec.name).block: lp.spec.block for lp in self.program.loops
+        }
         await self.publish({**static, **self.program.values()})
         log.info("PLC server listening at %s", self.url)
 
@@ -93,27 +94,62 @@ class PlcServer:
 
     # ---- writes and calls ---------------------------------------------------------------
 
-    def _on_write(self, tag: Tag, value: Any) -> ua.StatusCode | None:
+    def write_handlers(self) -> HandlerTable[WriteHandler]:
+        """The handler of each writable PLC variable: the program's (:func:`program_writes`),
+        its refusal answered BadOutOfRange."""
+        table: HandlerTable[WriteHandler] = HandlerTable()
+        for path, apply in program_writes(self.program).items():
+            table.on(path, self._heartbeat(apply) if path == HEARTBEAT_PATH else self._request(apply))
+        return table
+
+    def method_handlers(self) -> HandlerTable[MethodHandler]:
+        """The handler of each PLC method: each loop's gain calls and the interlock reset."""
+        table: HandlerTable[MethodHandler] = HandlerTable()
+        table.on(paths.plc.interlock_reset, self._reset)
+        for lp in self.program.loops:
+            loop = paths.plc.loop(lp.spec.name)
+            table.on(loop.set_gains, self._set_gains_for(lp.spec.name))
+            table.on(loop.reset_gains, self._reset_gains_for(lp.spec.name))
+            table.on(loop.release_gains, self._release_gains_for(lp.spec.name))
+        return table
+
+    @staticmethod
+    def _applied(tag: Tag, apply: ProgramWrite, value: Any) -> ua.StatusCode | None:
         try:
-            applied = apply_write(self.program, tag.path, value)
+            apply(value)
         except (ValueError, KeyError) as e:
             log.info("write to %s refused: %s", tag.path, e)
             return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
-        if not applied:
-            return ua.StatusCode(ua.StatusCodes.BadNotWritable)
-        if tag.path == HEARTBEAT_PATH:
-            if self.on_heartbeat is not None:
-                self.on_heartbeat()
-            return None
-        log.info("%s := %r", tag.path, value)
-        self._changed()
         return None
+
+    def _heartbeat(self, apply: ProgramWrite) -> WriteHandler:
+        def handler(tag: Tag, value: Any) -> ua.StatusCode | None:
+            refused = self._applied(tag, apply, value)
+            if refused is None and self.on_heartbeat is not None:
+                self.on_heartbeat()
+            return refused
+
+        return handler
+
+    def _request(self, apply: ProgramWrite) -> WriteHandler:
+        """An operator's or the supervisor's write: logged, and the retentive memory stored."""
+
+        def handler(tag: Tag, value: Any) -> ua.StatusCode | None:
+            refused = self._applied(tag, apply, value)
+            if refused is None:
+                log.info("%s := %r", tag.path, value)
+                self._changed()
+            return refused
+
+        return handler
 
     def _changed(self) -> None:
         if self.on_change is not None:
             self.on_change()
 
     def _set_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
+        path = paths.plc.loop(loop).set_gains
+
         async def set_gains(kp: float, ki: float, kd: float) -> list[ua.Variant] | ua.StatusCode:
             user = CURRENT_USER.get()
             role = user.tank_role if isinstance(user, TankUser) else None
@@ -121,25 +157,29 @@ class PlcServer:
                 return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
             source = GainSource.SUPERVISOR if role is Role.SUPERVISOR else GainSource.ENGINEER
             status = self.program.stage_gains(loop, kp, ki, kd, source)
-            log.info("PLC.%s.SetGains(%g, %g, %g) as %s: %s", loop, kp, ki, kd, source.name, status.value)
+            log.info("%s(%g, %g, %g) as %s: %s", path, kp, ki, kd, source.name, status.value)
             self._changed()
             return ua.StatusCode(_STATUS[status])
 
         return set_gains
 
     def _reset_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
+        path = paths.plc.loop(loop).reset_gains
+
         async def reset_gains() -> list[ua.Variant] | ua.StatusCode:
             status = self.program.reset_gains(loop)
-            log.info("PLC.%s.ResetGains: %s", loop, status.value)
+            log.info("%s: %s", path, status.value)
             self._changed()
             return ua.StatusCode(_STATUS[status])
 
         return reset_gains
 
     def _release_gains_for(self, loop: str) -> Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]:
+        path = paths.plc.loop(loop).release_gains
+
         async def release_gains() -> list[ua.Variant] | ua.StatusCode:
             status = self.program.release_gains(loop)
-            log.info("PLC.%s.ReleaseGains: %s", loop, status.value)
+            log.info("%s: %s", path, status.value)
             self._changed()
             return ua.StatusCode(_STATUS[status])
 
@@ -147,6 +187,6 @@ class PlcServer:
 
     async def _reset(self) -> list[ua.Variant] | ua.StatusCode:
         reset = self.program.reset_interlocks()
-        log.info("PLC.Interlock.Reset: reset %s", ", ".join(reset) or "nothing")
+        log.info("%s: reset %s", paths.plc.interlock_reset, ", ".join(reset) or "nothing")
         self._changed()
         return ua.StatusCode(ua.StatusCodes.Good)

@@ -1,23 +1,57 @@
-"""The PLC program's writable items, applied by path: one dispatch for every transport.
+"""The PLC program's writable items: one handler per writable tag, for every transport.
 
-The OPC UA server (:class:`plc_emulator.server.PlcServer`) and the co-simulation's in-process
-PLC port (:class:`tankctl.cosim.ProgramPort`) both apply a client's write of a contract path
-through :func:`apply_write`, so a value reaches the program the same way, with the same checks,
-whichever way it travelled. The contract's own checks (type, finiteness, EURange, enumeration)
-run before, in :class:`tanklab.ua.WriteGuard` for OPC UA; the program's checks run here.
+Each writable variable of the PLC contract (``SP``, ``SPLow``, ``SPHigh``, ``Mode``,
+``ManualMV``, ``RemoteMV`` of each loop, and ``Supervisor.Heartbeat``) gets its own handler,
+attached to its path (:mod:`tanklab.paths`) in :func:`program_writes`: the program setter it
+goes to, with the value converted to the setter's type. The OPC UA server
+(:class:`plc_emulator.server.PlcServer`) wraps these handlers in its status codes; the
+co-simulation's in-process PLC port (:class:`tankctl.cosim.ProgramPort`) applies a write through
+:func:`apply_write`, the same table, so a value reaches the program the same way, with the same
+checks, whichever way it travelled. The contract's own checks (type, finiteness, EURange,
+enumeration) run before, in :class:`tanklab.ua.WriteGuard` for OPC UA; the program's checks run
+in its setters (ValueError or KeyError: refused, nothing changed).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
+from weakref import WeakKeyDictionary
 
 from plc_emulator.program import PlcProgram
+from tanklab import paths
 from tanklab.enums import LoopMode
-from tanklab.tags import HEARTBEAT_PATH
+from tanklab.handlers import HandlerTable
+
+ProgramWrite = Callable[[Any], None]
+"""Apply a contract-checked value to the program; raises ValueError or KeyError on refusal."""
+
+
+def program_writes(program: PlcProgram) -> HandlerTable[ProgramWrite]:
+    """The handler of each writable PLC variable, by path."""
+    table: HandlerTable[ProgramWrite] = HandlerTable()
+    table.on(paths.plc.heartbeat, lambda value: program.heartbeat(int(value)))
+    for lp in program.loops:
+        _loop_writes(table, program, lp.spec.name)
+    return table
+
+
+def _loop_writes(table: HandlerTable[ProgramWrite], program: PlcProgram, name: str) -> None:
+    loop = paths.plc.loop(name)
+    table.on(loop.sp, lambda value: program.set_sp(name, float(value)))
+    table.on(loop.sp_low, lambda value: program.set_sp_limits(name, low_m=float(value)))
+    table.on(loop.sp_high, lambda value: program.set_sp_limits(name, high_m=float(value)))
+    table.on(loop.mode, lambda value: program.set_mode(name, LoopMode(int(value))))
+    table.on(loop.manual_mv, lambda value: program.set_manual_mv(name, float(value)))
+    table.on(loop.remote_mv, lambda value: program.set_remote_mv(name, float(value)))
+
+
+_TABLES: WeakKeyDictionary[PlcProgram, HandlerTable[ProgramWrite]] = WeakKeyDictionary()
 
 
 def apply_write(program: PlcProgram, path: str, value: Any) -> bool:
-    """Apply a write of ``value`` to the contract path ``path``.
+    """Apply a write of ``value`` to the contract path ``path`` (through :func:`program_writes`,
+    built once per program).
 
     Returns
     -------
@@ -29,25 +63,11 @@ def apply_write(program: PlcProgram, path: str, value: Any) -> bool:
     ValueError, KeyError
         The program refused the value (out of range, unknown loop): nothing changed.
     """
-    if path == HEARTBEAT_PATH:
-        program.heartbeat(int(value))
-        return True
-    parts = path.split(".")
-    if len(parts) != 3 or parts[0] != "PLC":
+    table = _TABLES.get(program)
+    if table is None:
+        table = _TABLES[program] = program_writes(program)
+    handler = table.get(path)
+    if handler is None:
         return False
-    loop, item = parts[1], parts[2]
-    if item == "SP":
-        program.set_sp(loop, float(value))
-    elif item == "SPLow":
-        program.set_sp_limits(loop, low_m=float(value))
-    elif item == "SPHigh":
-        program.set_sp_limits(loop, high_m=float(value))
-    elif item == "Mode":
-        program.set_mode(loop, LoopMode(int(value)))
-    elif item == "ManualMV":
-        program.set_manual_mv(loop, float(value))
-    elif item == "RemoteMV":
-        program.set_remote_mv(loop, float(value))
-    else:
-        return False
+    handler(value)
     return True

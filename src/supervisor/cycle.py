@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -56,8 +57,9 @@ from supervisor.adaptation import (
 )
 from supervisor.mpc import MpcConfig, MpcController, MpcModel, MpcResult
 from supervisor.timing import ScanPredictor
+from tanklab import paths
 from tanklab.config import SiteConfig
-from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
+from tanklab.enums import GainSource, LoopMode, SupervisorMode
 
 FloatArray = NDArray[np.float64]
 ERROR_SCALE = {"m": 1.0, "cm": 100.0}
@@ -90,25 +92,25 @@ class PlcSnapshot:
     @staticmethod
     def read_paths(loops: list[str], tanks: list[str]) -> list[str]:
         """The PLC paths one snapshot reads, in one Read."""
-        paths = ["PLC.Status.Scan", "PLC.Status.ModelTime"]
-        paths += [f"PLC.{lp}.{item}" for lp in loops for item in _LOOP_ITEMS]
-        paths += [f"PLC.IO.LT{t[1:]}.{item}" for t in tanks for item in ("PV", "Good")]
-        return paths
+        read = [paths.plc.scan, paths.plc.model_time]
+        read += [p for lp in loops for p in _loop_items(lp)]
+        read += [p for t in tanks for p in (paths.plc.io(t).pv, paths.plc.io(t).good)]
+        return read
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any], loops: list[str], tanks: list[str]) -> PlcSnapshot:
         """Build a snapshot from PLC values keyed by path (a Read's results or PlcProgram.values())."""
-        loop_vals = np.array([[float(values[f"PLC.{lp}.{it}"]) for it in _LOOP_ITEMS] for lp in loops])
+        loop_vals = np.array([[float(values[p]) for p in _loop_items(lp)] for lp in loops])
         return cls(
-            scan=int(values["PLC.Status.Scan"]),
-            t_s=float(values["PLC.Status.ModelTime"]),
+            scan=int(values[paths.plc.scan]),
+            t_s=float(values[paths.plc.model_time]),
             sp_m=loop_vals[:, 0],
             pv_m=loop_vals[:, 1],
             mv=loop_vals[:, 2],
             modes=tuple(LoopMode(int(m)) for m in loop_vals[:, 3]),
             gains=loop_vals[:, 4:7],
-            levels_m=np.array([float(values[f"PLC.IO.LT{t[1:]}.PV"]) for t in tanks]),
-            good=np.array([bool(values[f"PLC.IO.LT{t[1:]}.Good"]) for t in tanks]),
+            levels_m=np.array([float(values[paths.plc.io(t).pv]) for t in tanks]),
+            good=np.array([bool(values[paths.plc.io(t).good]) for t in tanks]),
             sources=tuple(GainSource(int(s)) for s in loop_vals[:, 7]),
         )
 
@@ -117,7 +119,57 @@ class PlcSnapshot:
         return frozenset(j for j, s in enumerate(self.sources) if s is GainSource.ENGINEER)
 
 
-_LOOP_ITEMS = ("SP", "PV", "MV", "Mode", "Kp", "Ki", "Kd", "GainSource")
+@cache
+def _loop_items(loop: str) -> tuple[str, ...]:
+    """A loop's snapshot paths in :class:`PlcSnapshot` column order: SP, PV, MV, Mode, Kp, Ki,
+    Kd, GainSource."""
+    lp = paths.plc.loop(loop)
+    return (lp.sp, lp.pv, lp.mv, lp.mode, lp.kp, lp.ki, lp.kd, lp.gain_source)
+
+
+@dataclass(frozen=True)
+class LoopAdaptation:
+    """What the adapter reports about one loop (published under ``Supervisor.RLS.<loop>``),
+    every value finite (OPC UA carries no NaN to a client that expects a number).
+
+    Attributes
+    ----------
+    theta : estimated gains [Kp, Ki, Kd] per loop used.  covariance_trace : RLS covariance trace.
+    accepted : gain sets pushed and accepted.  last_reason : why the last candidate was rejected.
+    excitation, condition_number : of the information matrix.  box_distance : each gain's distance
+    to the nearest box limit (fraction of the width).  on_box_limit : a gain sits on a limit.
+    prior : the SIMC gains regularised toward.  noise_std_m : transmitter noise estimate [m].
+    """
+
+    theta: tuple[float, ...]
+    covariance_trace: float
+    accepted: int
+    last_reason: str
+    excitation: float
+    condition_number: float
+    box_distance: tuple[float, ...]
+    on_box_limit: bool
+    prior: tuple[float, ...]
+    noise_std_m: float
+
+
+@dataclass(frozen=True)
+class SupervisorStatus:
+    """The supervisor's state to publish, as values (the server maps it to its tags).
+
+    Attributes
+    ----------
+    mode : the running mode.  cycles : cycles run.
+    mpc : the last MPC step's result (None: none ran yet).
+    adaptation : per loop (loop name, report), in loop order; None without an adapter.
+    rejected : candidate gain sets rejected by a guard or the PLC (the same for every loop).
+    """
+
+    mode: SupervisorMode
+    cycles: int
+    mpc: MpcResult | None
+    adaptation: tuple[tuple[str, LoopAdaptation], ...] | None
+    rejected: int
 
 
 @dataclass
@@ -127,7 +179,8 @@ class Actions:
     remote_mv: dict[str, float] = field(default_factory=dict)
     modes: dict[str, LoopMode] = field(default_factory=dict)
     gains: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    values: dict[str, Any] = field(default_factory=dict)
+    status: SupervisorStatus | None = None
+    """The supervisor's state after the cycle (None on actions not made by a cycle)."""
 
 
 def build_mpc(site: SiteConfig) -> tuple[MpcController, TankNetwork]:
@@ -210,7 +263,7 @@ class SupervisorCore:
         self.push_scan = -10
         self.pushes_refused = 0
         self.held_loops = 0  # loops left out of the last proposed push: an engineer holds them
-        self._rls_cache: dict[str, Any] | None = None  # the adapter's nodes, until it changes
+        self._rls_cache: tuple[tuple[str, LoopAdaptation], ...] | None = None  # until it changes
         self._rejected_pushes = 0
         self.remote_since_scan: int | None = None  # MPC: first scan that shows the loops in REMOTE
         self.sheds = 0  # MPC shed to ADVISORY because a loop left REMOTE
@@ -353,7 +406,7 @@ class SupervisorCore:
         if self.mode is not SupervisorMode.OFF and measured:
             self._compute(snap, u_before, act, r_preview)
         self.last = snap
-        act.values.update(self.values())
+        act.status = self.status()
         return act
 
     def _advance(self, snap: PlcSnapshot) -> None:
@@ -489,63 +542,51 @@ class SupervisorCore:
 
     # ---- publishing ---------------------------------------------------------------------
 
-    def values(self) -> dict[str, Any]:
-        """The supervisor's node values now, keyed by tag path."""
-        v: dict[str, Any] = {"Supervisor.Mode": int(self.mode), "Supervisor.Cycle": self.cycles}
-        res = self.result
-        if res is not None:
-            v["Supervisor.MPC.SolveTime"] = res.solve_time_s
-            v["Supervisor.MPC.Iterations"] = res.iterations
-            v["Supervisor.MPC.Status"] = int(res.status)
-            v["Supervisor.MPC.Failures"] = res.failures
-            v["Supervisor.MPC.PlannedMV"] = [float(x) for x in res.planned_u.ravel()]
-            v["Supervisor.MPC.PredictedPV"] = [float(x) for x in res.predicted_z.ravel()]
-            v["Supervisor.Estimator.Disturbance"] = [float(x) for x in res.disturbance]
-        else:
-            v["Supervisor.MPC.Status"] = int(MpcStatus.NOT_RUN)
+    def status(self) -> SupervisorStatus:
+        """The supervisor's state now (:class:`SupervisorStatus`)."""
+        adaptation = None
         if self.adapter is not None:
             if self._rls_cache is None:
-                self._rls_cache = self._rls_values()
-            v.update(self._rls_cache)
-            rejected = self._rejected_pushes + self.pushes_refused
-            for name in self.loop_names:
-                v[f"Supervisor.RLS.{name}.Rejected"] = rejected
-        return v
+                self._rls_cache = self._adaptation()
+            adaptation = self._rls_cache
+        return SupervisorStatus(
+            mode=self.mode,
+            cycles=self.cycles,
+            mpc=self.result,
+            adaptation=adaptation,
+            rejected=self._rejected_pushes + self.pushes_refused,
+        )
 
-    def _rls_values(self) -> dict[str, Any]:
-        """The adapter's nodes (diagnostics and health: eigenvalues and box distances, so computed
-        only after the adapter changed, not every cycle: in MPC mode it never does)."""
+    def _adaptation(self) -> tuple[tuple[str, LoopAdaptation], ...]:
+        """The adapter's report per loop (diagnostics and health: eigenvalues and box distances,
+        so computed only after the adapter changed, not every cycle: in MPC mode it never does)."""
         assert self.adapter is not None
-        v: dict[str, Any] = {}
         d = self.adapter.diagnostics()
         self._rejected_pushes = d.rejected_pushes
         reason = d.last_reject_reason.value if d.last_reject_reason else ""
         noise = self.adapter.noise_std()
         scale = [ERROR_SCALE[lp.error_unit] for lp in self.loops]
-        for j, name in enumerate(self.loop_names):
-            p = f"Supervisor.RLS.{name}"
-            pump = d.pumps[j]
-            v[f"{p}.Theta"] = [float(x) for x in pump.theta]
-            v[f"{p}.CovarianceTrace"] = (
-                float(pump.covariance_trace) if math.isfinite(pump.covariance_trace) else 0.0
-            )
-            v[f"{p}.Accepted"] = d.accepted_pushes
-            v[f"{p}.LastReason"] = reason
-            v.update(_health_values(p, pump, float(noise[j]) / scale[j]))
-        return v
+        return tuple(
+            (name, _loop_adaptation(d.pumps[j], d.accepted_pushes, reason, float(noise[j]) / scale[j]))
+            for j, name in enumerate(self.loop_names)
+        )
 
 
-def _health_values(p: str, pump: PumpDiagnostics, noise_m: float) -> dict[str, Any]:
-    """The adaptation-health nodes of one loop (docs/adaptation.md 2.10), finite for OPC UA."""
+def _loop_adaptation(pump: PumpDiagnostics, accepted: int, reason: str, noise_m: float) -> LoopAdaptation:
+    """One loop's report (docs/adaptation.md 2.10), finite for OPC UA."""
 
     def fin(x: float, default: float = 0.0) -> float:
         return float(x) if math.isfinite(x) else default
 
-    return {
-        f"{p}.Excitation": fin(pump.excitation),
-        f"{p}.ConditionNumber": fin(pump.condition_number, 1.0),
-        f"{p}.BoxDistance": [fin(float(x)) for x in pump.box_distance],
-        f"{p}.OnBoxLimit": bool(pump.on_box_limit),
-        f"{p}.Prior": [float(x) for x in pump.prior],
-        f"{p}.NoiseStd": fin(noise_m),
-    }
+    return LoopAdaptation(
+        theta=tuple(float(x) for x in pump.theta),
+        covariance_trace=fin(float(pump.covariance_trace)),
+        accepted=accepted,
+        last_reason=reason,
+        excitation=fin(pump.excitation),
+        condition_number=fin(pump.condition_number, 1.0),
+        box_distance=tuple(fin(float(x)) for x in pump.box_distance),
+        on_box_limit=bool(pump.on_box_limit),
+        prior=tuple(float(x) for x in pump.prior),
+        noise_std_m=fin(noise_m),
+    )

@@ -17,9 +17,10 @@ from asyncua import ua
 
 from supervisor.cycle import PlcSnapshot
 from supervisor.port import PlcRequest
+from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
-from tanklab.tags import HEARTBEAT_PATH, plc_tags, tags_by_path
+from tanklab.tags import plc_tags, tags_by_path
 from tanklab.ua import ClientSetup, Link
 
 log = logging.getLogger(__name__)
@@ -32,13 +33,15 @@ class PlcLink:
         self.site = site
         self.loops = site.loop_names
         self.tanks = site.tank_names
-        tags = tags_by_path(plc_tags(site))
+        contract = tags_by_path(plc_tags(site))
         self.read_paths = PlcSnapshot.read_paths(self.loops, self.tanks)
-        writes = [HEARTBEAT_PATH]
-        writes += [f"PLC.{lp}.{item}" for lp in self.loops for item in ("RemoteMV", "Mode", "SetGains")]
+        writes = [paths.plc.heartbeat]
+        for lp in self.loops:
+            loop = paths.plc.loop(lp)
+            writes += [loop.remote_mv, loop.mode, loop.set_gains]
         self.link = Link(
             url,
-            {p: tags[p] for p in self.read_paths + writes},
+            {p: contract[p] for p in self.read_paths + writes},
             name="plc",
             setup=setup,
             timeout_s=timeout_s,
@@ -88,7 +91,7 @@ class PlcLink:
         for lp, (kp, ki, kd) in request.gains:
             try:
                 await self.link.call(
-                    f"PLC.{lp}.SetGains",
+                    paths.plc.loop(lp).set_gains,
                     ua.Variant(kp, ua.VariantType.Double),
                     ua.Variant(ki, ua.VariantType.Double),
                     ua.Variant(kd, ua.VariantType.Double),

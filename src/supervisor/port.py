@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from supervisor.cycle import Actions, PlcSnapshot, SupervisorCore
-from tanklab.tags import HEARTBEAT_PATH
+from tanklab import paths
 
 HEARTBEAT_MODULO = 2**32
 """``PLC.Supervisor.Heartbeat`` is a UInt32: the count wraps."""
@@ -61,12 +61,12 @@ class PlcRequest:
         writes: list[tuple[str, object]] = []
         gains: tuple[tuple[str, tuple[float, float, float]], ...] = ()
         if actions is not None:
-            writes += [(f"PLC.{lp}.RemoteMV", float(mv)) for lp, mv in actions.remote_mv.items()]
-            writes += [(f"PLC.{lp}.Mode", int(m)) for lp, m in actions.modes.items()]
+            writes += [(paths.plc.loop(lp).remote_mv, float(mv)) for lp, mv in actions.remote_mv.items()]
+            writes += [(paths.plc.loop(lp).mode, int(m)) for lp, m in actions.modes.items()]
             gains = tuple(actions.gains.items())
         beat: tuple[tuple[str, object], ...] = ()
         if heartbeat is not None:
-            beat = ((HEARTBEAT_PATH, heartbeat % HEARTBEAT_MODULO),)
+            beat = ((paths.plc.heartbeat, heartbeat % HEARTBEAT_MODULO),)
         if not gains:
             return cls(tuple(writes) + beat, (), (), actions)
         return cls(tuple(writes), gains, beat, actions)

@@ -30,6 +30,7 @@ from supervisor.cycle import SupervisorCore
 from supervisor.link import PlcLink
 from supervisor.port import SupervisorDriver
 from supervisor.server import SupervisorServer
+from tanklab import paths
 from tanklab.clock import Clock, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
 from tanklab.enums import SupervisorMode
@@ -142,7 +143,7 @@ async def run_supervisor(
         while not stop.is_set():
             snap = await link.snapshot()
             now = clock.now()
-            if (link_status := link.link.status("Supervisor.PlcLink")) != link_published:
+            if (link_status := link.link.status(paths.supervisor.plc_link)) != link_published:
                 await server.publish(link_status)
                 link_published = link_status
             if snap is None:
@@ -150,14 +151,14 @@ async def run_supervisor(
                     log.warning("PLC lost; will read the applied gains back after reconnecting")
                     core.push_refused()
                 connected = False
-                await server.publish({"Supervisor.PlcConnected": False})
+                await server.publish({paths.supervisor.plc_connected: False})
                 await sleep_or_stop(clock, now + poll_s * 10, stop)
                 continue
             if not connected:
                 connected = True
                 last_progress = now
                 core.push_refused()  # resynchronise the adapter with what the PLC applies
-                await server.publish({"Supervisor.PlcConnected": True})
+                await server.publish({paths.supervisor.plc_connected: True})
             if snap.scan == driver.last_scan:
                 if now - last_progress > stale_wall_s:
                     log.warning("PLC scan counter stale for %.1f s: dropping the link", now - last_progress)
@@ -181,8 +182,8 @@ async def run_supervisor(
                 driver.refused(await link.apply(request))
             except LinkError as e:
                 log.warning("%s", e)
-            if request.actions is not None:
-                await server.publish(request.actions.values)
+            if request.actions is not None and request.actions.status is not None:
+                await server.publish_status(request.actions.status)
                 if trace_file is not None and core.result_scan == snap.scan:
                     trace_file.write(",".join(repr(x) for x in trace_row(snap.scan, snap.t_s, core)) + "\n")
     finally:

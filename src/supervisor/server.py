@@ -1,5 +1,9 @@
 """The supervisor's OPC UA server: mode, MPC diagnostics, RLS state, disturbance estimate.
 
+The core reports its state as a value (:class:`supervisor.cycle.SupervisorStatus`);
+:func:`status_values` maps it to the contract's paths (:mod:`tanklab.paths`), the only place
+that knows which node shows what.
+
 ``Supervisor.Mode`` is writable (engineer): OFF, ADVISORY, ADAPTIVE_PID, MPC; the switch happens
 at the next cycle, bumplessly. ADAPTIVE_PID on a site whose loops are not all PID loops is
 refused with BadInvalidState.
@@ -13,11 +17,13 @@ from typing import Any
 
 from asyncua import ua
 
-from supervisor.cycle import SupervisorCore
+from supervisor.cycle import SupervisorCore, SupervisorStatus
+from tanklab import paths
 from tanklab.config import SiteConfig
-from tanklab.enums import SupervisorMode
+from tanklab.enums import MpcStatus, SupervisorMode
+from tanklab.handlers import HandlerTable
 from tanklab.tags import Tag, supervisor_tags, tags_by_path
-from tanklab.ua import Publisher
+from tanklab.ua import Publisher, WriteHandler
 from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
@@ -48,10 +54,10 @@ class SupervisorServer:
             name="tanklab supervisor",
             security=self.security,
             tags=self.tags,
-            on_write=self._on_write,
+            writes=self.write_handlers(),
         )
         self.publisher = self.tier.publisher
-        await self.publish(self.core.values())
+        await self.publish_status(self.core.status())
         log.info("supervisor server listening at %s", self.url)
 
     async def stop(self) -> None:
@@ -63,15 +69,54 @@ class SupervisorServer:
         assert self.publisher is not None
         await self.publisher.publish(values)
 
-    def _on_write(self, tag: Tag, value: Any) -> ua.StatusCode | None:
-        if tag.path != "Supervisor.Mode":
-            return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+    async def publish_status(self, status: SupervisorStatus) -> None:
+        """Publish the core's state (:func:`status_values`)."""
+        await self.publish(status_values(status))
+
+    def write_handlers(self) -> HandlerTable[WriteHandler]:
+        """The handler of each writable supervisor variable (``Supervisor.Mode``)."""
+        table: HandlerTable[WriteHandler] = HandlerTable()
+        table.on(paths.supervisor.mode, self._write_mode)
+        return table
+
+    def _write_mode(self, tag: Tag, value: Any) -> ua.StatusCode | None:
         try:
             self.core.request_mode(SupervisorMode(int(value)))
         except ValueError as e:
             log.info("mode change refused: %s", e)
             return ua.StatusCode(ua.StatusCodes.BadInvalidState)
-        log.info("Supervisor.Mode := %s", SupervisorMode(int(value)).name)
+        log.info("%s := %s", tag.path, SupervisorMode(int(value)).name)
         if self.on_mode is not None:
             self.on_mode()
         return None
+
+
+def status_values(status: SupervisorStatus) -> dict[str, Any]:
+    """The supervisor's node values of ``status``, keyed by tag path."""
+    sup = paths.supervisor
+    v: dict[str, Any] = {sup.mode: int(status.mode), sup.cycle: status.cycles}
+    res = status.mpc
+    if res is not None:
+        v[sup.mpc_solve_time] = res.solve_time_s
+        v[sup.mpc_iterations] = res.iterations
+        v[sup.mpc_status] = int(res.status)
+        v[sup.mpc_failures] = res.failures
+        v[sup.mpc_planned_mv] = [float(x) for x in res.planned_u.ravel()]
+        v[sup.mpc_predicted_pv] = [float(x) for x in res.predicted_z.ravel()]
+        v[sup.disturbance] = [float(x) for x in res.disturbance]
+    else:
+        v[sup.mpc_status] = int(MpcStatus.NOT_RUN)
+    for name, a in status.adaptation or ():
+        rls = sup.rls(name)
+        v[rls.theta] = list(a.theta)
+        v[rls.covariance_trace] = a.covariance_trace
+        v[rls.accepted] = a.accepted
+        v[rls.last_reason] = a.last_reason
+        v[rls.excitation] = a.excitation
+        v[rls.condition_number] = a.condition_number
+        v[rls.box_distance] = list(a.box_distance)
+        v[rls.on_box_limit] = a.on_box_limit
+        v[rls.prior] = list(a.prior)
+        v[rls.noise_std] = a.noise_std_m
+        v[rls.rejected] = status.rejected
+    return v

@@ -30,7 +30,8 @@ checks: SubjectAltName with the ApplicationUri plus DNSName / IPAddress entries 
 KeyUsage digitalSignature, contentCommitment (nonRepudiation), keyEncipherment,
 dataEncipherment; ExtendedKeyUsage serverAuth + clientAuth; BasicConstraints cA=false; Subject
 and Authority KeyIdentifiers. Keys are RSA 2048, signatures RSA PKCS#1 v1.5 with SHA-256 (the
-Basic256Sha256 and Aes128_Sha256_RsaOaep policies' certificate requirements).
+Basic256Sha256 and Aes128_Sha256_RsaOaep policies' certificate requirements). They are built
+in memory by :mod:`tanklab.certs`; this module decides where they live and writes them.
 
 This module reads the wall clock (certificate validity starts now) and writes files; it never
 logs or prints key material.
@@ -38,7 +39,6 @@ logs or prints key material.
 
 from __future__ import annotations
 
-import ipaddress
 import logging
 import os
 import re
@@ -52,8 +52,19 @@ from cryptography import x509
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from tanklab.certs import (
+    CA_DAYS,
+    KEY_BITS,
+    application_cert,
+    certificate_uri,
+    common_name,
+    fingerprint,
+    general_names,
+    key_pem,
+    make_ca,
+    validity,
+)
 from tanklab.errors import SecurityError
 from tanklab.tags import APPLICATION_URIS
 
@@ -93,22 +104,12 @@ DEFAULT_HOSTS = ("localhost", "127.0.0.1")
 DEFAULT_DAYS = 825
 """Validity of an application certificate and the CRL's nextUpdate horizon [days]."""
 
-CA_DAYS = 3650
-"""Validity of the CA certificate [days] (at least that of the certificates it issues)."""
-
-KEY_BITS = 2048
-"""RSA modulus size [bits] of every key."""
-
-CLOCK_SKEW = timedelta(minutes=5)
-"""notBefore is set this far in the past so that a peer whose clock lags still accepts a new cert."""
-
 CA_TRUST_NAME = "tanklab-ca.der"
 """File name of the CA's copy in ``trusted/``."""
 
 LEGACY_CA_KEY_NAME = "ca.pem"
 """Where homes made before decision 0022 kept the CA's private key (``ca/``); :func:`migrate`."""
 
-_ORGANIZATION = "tanklab"
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
@@ -192,106 +193,6 @@ def _checked_name(name: str) -> str:
     return name
 
 
-def _subject(common_name: str) -> x509.Name:
-    return x509.Name(
-        [
-            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
-            x509.NameAttribute(NameOID.ORGANIZATION_NAME, _ORGANIZATION),
-        ]
-    )
-
-
-def _general_names(uri: str, hosts: Sequence[str]) -> list[x509.GeneralName]:
-    """SubjectAltName entries: the ApplicationUri, then one DNSName or IPAddress per host."""
-    if not uri or any(c.isspace() for c in uri):
-        raise SecurityError(f"application URI {uri!r}: must be a non-empty URI without spaces")
-    names: list[x509.GeneralName] = [x509.UniformResourceIdentifier(uri)]
-    for host in hosts:
-        if not host or any(c.isspace() for c in host):
-            raise SecurityError(f"host {host!r}: must be a DNS name or an IP address")
-        try:
-            names.append(x509.IPAddress(ipaddress.ip_address(host)))
-        except ValueError:
-            try:
-                names.append(x509.DNSName(host))
-            except ValueError as e:  # non-ASCII names
-                raise SecurityError(f"host {host!r}: must be a DNS name or an IP address") from e
-    return names
-
-
-def _application_extensions(
-    builder: x509.CertificateBuilder,
-    uri: str,
-    hosts: Sequence[str],
-    public_key: rsa.RSAPublicKey,
-    issuer_key: rsa.RSAPublicKey,
-) -> x509.CertificateBuilder:
-    """The OPC UA application-instance extensions (see the module docstring)."""
-    return (
-        builder.add_extension(x509.SubjectAlternativeName(_general_names(uri, hosts)), critical=False)
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=True,
-                content_commitment=True,
-                key_encipherment=True,
-                data_encipherment=True,
-                key_agreement=False,
-                key_cert_sign=False,
-                crl_sign=False,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
-        .add_extension(
-            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-            critical=False,
-        )
-        .add_extension(x509.SubjectKeyIdentifier.from_public_key(public_key), critical=False)
-        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(issuer_key), critical=False)
-    )
-
-
-def _validity(
-    now: datetime, days: int, not_before: datetime | None, not_after: datetime | None
-) -> tuple[datetime, datetime]:
-    """(notBefore, notAfter): now - CLOCK_SKEW .. now + days, each replaceable."""
-    if days <= 0:
-        raise SecurityError(f"days: must be a positive number of days, got {days}")
-    start = not_before if not_before is not None else now - CLOCK_SKEW
-    end = not_after if not_after is not None else now + timedelta(days=days)
-    if end <= start:
-        raise SecurityError(f"validity: not_after {end.isoformat()} is not after {start.isoformat()}")
-    return start, end
-
-
-def _fingerprint(cert: x509.Certificate) -> str:
-    """SHA-1 thumbprint as 40 lowercase hex digits (what OPC UA calls the certificate thumbprint)."""
-    return cert.fingerprint(hashes.SHA1()).hex()  # a thumbprint (OPC UA names files by it), not a signature
-
-
-def _common_name(cert: x509.Certificate) -> str:
-    attrs = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
-    value = attrs[0].value if attrs else ""
-    return value if isinstance(value, str) else value.decode("utf-8", "replace")
-
-
-def _uri(cert: x509.Certificate) -> str | None:
-    try:
-        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    except x509.ExtensionNotFound:
-        return None
-    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
-    return uris[0] if uris else None
-
-
-def _key_pem(key: rsa.RSAPrivateKey) -> bytes:
-    return key.private_bytes(
-        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
-    )
-
-
 # --------------------------------------------------------------------------------------------
 # Files
 # --------------------------------------------------------------------------------------------
@@ -332,7 +233,7 @@ def _write_cert(path: Path, cert: x509.Certificate) -> None:
 
 
 def _write_key(path: Path, key: rsa.RSAPrivateKey) -> None:
-    write_file(path, _key_pem(key), 0o600)
+    write_file(path, key_pem(key), 0o600)
 
 
 def read_certificate(file: Path) -> x509.Certificate:
@@ -363,72 +264,9 @@ def _read_ca(pki: Pki) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
     return cert, key
 
 
-def _new_key() -> rsa.RSAPrivateKey:
-    return rsa.generate_private_key(public_exponent=65537, key_size=KEY_BITS)
-
-
 # --------------------------------------------------------------------------------------------
 # CA, certificates, CRL
 # --------------------------------------------------------------------------------------------
-
-
-def _make_ca(now: datetime, days: int) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
-    key = _new_key()
-    name = _subject("tanklab CA")
-    start, end = _validity(now, max(days, CA_DAYS), None, None)
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(name)
-        .issuer_name(name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(start)
-        .not_valid_after(end)
-        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=False,
-                content_commitment=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                key_cert_sign=True,
-                crl_sign=True,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
-        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
-        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(key.public_key()), critical=False)
-        .sign(key, hashes.SHA256())
-    )
-    return cert, key
-
-
-def _application_cert(
-    name: str,
-    uri: str,
-    hosts: Sequence[str],
-    start: datetime,
-    end: datetime,
-    issuer: tuple[x509.Certificate, rsa.RSAPrivateKey] | None,
-) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
-    """An application certificate signed by ``issuer`` (CA cert, CA key), or self-signed if None."""
-    key = _new_key()
-    subject = _subject(f"tanklab {name}")
-    issuer_name, signer = (issuer[0].subject, issuer[1]) if issuer else (subject, key)
-    builder = (
-        x509.CertificateBuilder()
-        .subject_name(subject)
-        .issuer_name(issuer_name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(start)
-        .not_valid_after(end)
-    )
-    builder = _application_extensions(builder, uri, hosts, key.public_key(), signer.public_key())
-    return builder.sign(signer, hashes.SHA256()), key
 
 
 def _revoked_entries(pki: Pki) -> tuple[list[x509.RevokedCertificate], int]:
@@ -499,23 +337,23 @@ def init_pki(
     _migrate_logged(pki)
     if pki.exists() and not force:
         return pki
-    _general_names("urn:check", hosts)  # reject a bad host before anything is written
-    _validity(_now(), days, None, None)  # and bad days
+    general_names("urn:check", hosts)  # reject a bad host before anything is written
+    validity(_now(), days, None, None)  # and bad days
     for sub in (pki.root, pki.ca_cert.parent, pki.own_dir, pki.private_dir, pki.trusted_dir, pki.crl_dir):
         _mkdir(sub)
     now = _now()
     fresh = force or not (pki.ca_cert.is_file() and pki.ca_key.is_file())
     if fresh:
-        ca = _make_ca(now, days)
+        ca = make_ca(now, days)
         _write_key(pki.ca_key, ca[1])
         _write_cert(pki.ca_cert, ca[0])
         write_file(pki.ca_cert_pem, ca[0].public_bytes(serialization.Encoding.PEM), 0o644)
     else:
         ca = _read_ca(pki)
-    start, end = _validity(now, days, None, None)
+    start, end = validity(now, days, None, None)
     for name in IDENTITIES:
         if fresh or not (pki.cert_path(name).is_file() and pki.key_path(name).is_file()):
-            cert, key = _application_cert(name, APPLICATION_URIS[name], hosts, start, end, ca)
+            cert, key = application_cert(name, APPLICATION_URIS[name], hosts, start, end, ca)
             _write_key(pki.key_path(name), key)
             _write_cert(pki.cert_path(name), cert)
     if fresh or not (pki.trusted_dir / CA_TRUST_NAME).is_file():
@@ -542,8 +380,8 @@ def issue(
     An existing certificate of the same name is replaced. Returns (cert_path, key_path).
     """
     ca = _read_ca(pki)
-    start, end = _validity(_now(), days, not_before, not_after)
-    cert, key = _application_cert(name, uri, hosts, start, end, ca)
+    start, end = validity(_now(), days, not_before, not_after)
+    cert, key = application_cert(name, uri, hosts, start, end, ca)
     cert_path, key_path = pki.cert_path(name), pki.key_path(name)
     _write_key(key_path, key)
     _write_cert(cert_path, cert)
@@ -563,8 +401,8 @@ def self_signed(
     Same extensions as the CA-issued ones. Written to ``directory/{name}.der`` and
     ``directory/{name}.pem`` (0600); returns (cert_path, key_path).
     """
-    start, end = _validity(_now(), days, None, None)
-    cert, key = _application_cert(_checked_name(name), uri, hosts, start, end, None)
+    start, end = validity(_now(), days, None, None)
+    cert, key = application_cert(_checked_name(name), uri, hosts, start, end, None)
     cert_path, key_path = Path(directory) / f"{name}.der", Path(directory) / f"{name}.pem"
     _write_key(key_path, key)
     _write_cert(cert_path, cert)
@@ -573,8 +411,8 @@ def self_signed(
 
 def trusted_name(cert: x509.Certificate) -> str:
     """File name of ``cert`` in ``trusted/``: ``{CN}_{sha1}.der`` with the CN reduced to [A-Za-z0-9_.-]."""
-    safe = _SAFE.sub("_", _common_name(cert)).strip("_.") or "certificate"
-    return f"{safe[:64]}_{_fingerprint(cert)}.der"
+    safe = _SAFE.sub("_", common_name(cert)).strip("_.") or "certificate"
+    return f"{safe[:64]}_{fingerprint(cert)}.der"
 
 
 def trust(pki: Pki, file: Path) -> Path:
@@ -620,9 +458,9 @@ def _describe_one(path: Path, kind: str, revoked: set[int]) -> dict[str, Any]:
         "name": path.stem,
         "kind": kind,
         "subject": cert.subject.rfc4514_string(),
-        "uri": _uri(cert),
+        "uri": certificate_uri(cert),
         "not_after": cert.not_valid_after_utc.isoformat(),
-        "sha1": _fingerprint(cert),
+        "sha1": fingerprint(cert),
         "revoked": cert.serial_number in revoked,
         "path": str(path),
     }

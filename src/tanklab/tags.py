@@ -15,18 +15,67 @@ asyncua server and resolves them on a client.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from enum import IntEnum, StrEnum
-from typing import Literal
-
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SensorFault, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
+from tanklab.paths import (
+    IDENTITY_ITEMS,
+    LINK_STATUS_ITEMS,
+    TIER_ROOTS,
+    AlarmKind,
+    BalanceItem,
+    Tier,
+    identity_paths,
+    link_status_paths,
+    plant,
+    plc,
+    supervisor,
+)
+from tanklab.tag_model import (
+    ENGINEER_ONLY,
+    NOBODY,
+    OPERATOR_UP,
+    Argument,
+    DataType,
+    Role,
+    Tag,
+    TagList,
+    enum_name,
+    enum_range,
+)
+
+__all__ = [
+    "APPLICATION_URIS",
+    "ENGINEER_ONLY",
+    "HEARTBEAT_PATH",
+    "IDENTITY_ITEMS",
+    "LINK_STATUS_ITEMS",
+    "NAMESPACE_URI",
+    "NOBODY",
+    "OPERATOR_UP",
+    "TIER_ROOTS",
+    "Argument",
+    "DataType",
+    "Role",
+    "Tag",
+    "Tier",
+    "all_tags",
+    "identity_paths",
+    "link_status_paths",
+    "plant",
+    "plant_tags",
+    "plc",
+    "plc_tags",
+    "render_markdown",
+    "supervisor",
+    "supervisor_tags",
+    "tags_by_path",
+]
 
 NAMESPACE_URI = "urn:tanklab"
 """Namespace URI of every tanklab node; clients look its index up, never hard-code it."""
 
-HEARTBEAT_PATH = "PLC.Supervisor.Heartbeat"
+HEARTBEAT_PATH = plc.heartbeat
 """The supervisor's heartbeat (UInt32): written every scan it acknowledges, checked by the PLC."""
 
 APPLICATION_URIS = {
@@ -37,204 +86,8 @@ APPLICATION_URIS = {
 }
 """ApplicationUri of each tier (and of the CLI as a client)."""
 
-Tier = Literal["plant", "plc", "supervisor"]
 
-
-class Role(StrEnum):
-    """Who may do what. Reading is open to every role; writes and calls are listed per tag."""
-
-    OBSERVER = "Observer"
-    OPERATOR = "Operator"
-    ENGINEER = "Engineer"
-    SUPERVISOR = "Supervisor"
-    PLC = "PLC"
-
-
-class DataType(StrEnum):
-    """OPC UA built-in types used by the contract."""
-
-    DOUBLE = "Double"
-    INT32 = "Int32"
-    UINT32 = "UInt32"
-    BOOLEAN = "Boolean"
-    STRING = "String"
-    DOUBLE_ARRAY = "Double[]"
-
-
-OPERATOR_UP = frozenset({Role.OPERATOR, Role.ENGINEER})
-"""Operator-level writes: the operator and the engineer above them."""
-ENGINEER_ONLY = frozenset({Role.ENGINEER})
-NOBODY: frozenset[Role] = frozenset()
-
-
-@dataclass(frozen=True)
-class Argument:
-    """One input or output argument of a method."""
-
-    name: str
-    data_type: DataType
-    description: str
-    unit: str | None = None
-
-
-@dataclass(frozen=True)
-class Tag:
-    """One node of the contract.
-
-    Attributes
-    ----------
-    path
-        Dotted path, also the string NodeId (``Plant.T1.Level``).
-    tier
-        Which server hosts it.
-    kind
-        ``variable`` or ``method`` (objects are implied by the paths).
-    data_type
-        Value type of a variable (``None`` for a method).
-    unit
-        Engineering unit (``m``, ``m^3/s``, ``rpm``, ``s``, ``1``), or ``None``.
-    eu_range
-        (low, high) of the EURange; writes outside it are refused with BadOutOfRange.
-    writers
-        Roles that may write the variable or call the method; empty = read-only.
-    restricted
-        Pairs (role, values): that writer may only move the enumerated value between these
-        values (old and new both among them), e.g. the supervisor switches a loop only between
-        AUTO and REMOTE.
-    description
-        What the value means, with its array layout if it is an array.
-    enum
-        The enumeration of an Int32 enumerated node.
-    inputs, outputs
-        Method arguments.
-    initial
-        Value the node is created with.
-    """
-
-    path: str
-    tier: Tier
-    kind: Literal["variable", "method"]
-    description: str
-    data_type: DataType | None = None
-    unit: str | None = None
-    eu_range: tuple[float, float] | None = None
-    writers: frozenset[Role] = NOBODY
-    restricted: tuple[tuple[Role, frozenset[int]], ...] = ()
-    enum: type[IntEnum] | None = None
-    inputs: tuple[Argument, ...] = ()
-    outputs: tuple[Argument, ...] = ()
-    initial: float | int | bool | str | list[float] | None = None
-
-    @property
-    def name(self) -> str:
-        """Browse name: the last path element."""
-        return self.path.rsplit(".", 1)[-1]
-
-    @property
-    def parent(self) -> str:
-        """Path of the object holding this node."""
-        return self.path.rsplit(".", 1)[0]
-
-    @property
-    def writable(self) -> bool:
-        """Whether any role may write (variables) or call (methods) it."""
-        return bool(self.writers)
-
-    @property
-    def analog(self) -> bool:
-        """AnalogItemType: a Double with an engineering unit and a range."""
-        return self.data_type == DataType.DOUBLE and self.unit is not None and self.eu_range is not None
-
-    def initial_value(self) -> float | int | bool | str | list[float]:
-        """The value the node starts with (a type-appropriate zero unless given)."""
-        if self.initial is not None:
-            return self.initial
-        zeros: dict[DataType, float | int | bool | str | list[float]] = {
-            DataType.DOUBLE: 0.0,
-            DataType.INT32: 0,
-            DataType.UINT32: 0,
-            DataType.BOOLEAN: False,
-            DataType.STRING: "",
-            DataType.DOUBLE_ARRAY: [],
-        }
-        return zeros[self.data_type or DataType.DOUBLE]
-
-
-@dataclass
-class _Builder:
-    tier: Tier
-    tags: list[Tag] = field(default_factory=list)
-
-    def var(
-        self,
-        path: str,
-        data_type: DataType,
-        description: str,
-        *,
-        unit: str | None = None,
-        eu_range: tuple[float, float] | None = None,
-        writers: frozenset[Role] = NOBODY,
-        restricted: tuple[tuple[Role, frozenset[int]], ...] = (),
-        enum: type[IntEnum] | None = None,
-        initial: float | int | bool | str | list[float] | None = None,
-    ) -> None:
-        self.tags.append(
-            Tag(
-                path=path,
-                tier=self.tier,
-                kind="variable",
-                description=description,
-                data_type=data_type,
-                unit=unit,
-                eu_range=eu_range,
-                writers=writers,
-                restricted=restricted,
-                enum=enum,
-                initial=initial,
-            )
-        )
-
-    def method(
-        self,
-        path: str,
-        description: str,
-        *,
-        writers: frozenset[Role],
-        inputs: tuple[Argument, ...] = (),
-        outputs: tuple[Argument, ...] = (),
-    ) -> None:
-        self.tags.append(
-            Tag(
-                path=path,
-                tier=self.tier,
-                kind="method",
-                description=description,
-                writers=writers,
-                inputs=inputs,
-                outputs=outputs,
-            )
-        )
-
-
-def _enum_name(tag: Tag, value: int) -> str:
-    return tag.enum(value).name if tag.enum is not None else str(value)
-
-
-def _enum_range(enum: type[IntEnum]) -> tuple[float, float]:
-    values = [int(m) for m in enum]
-    return (float(min(values)), float(max(values)))
-
-
-LINK_STATUS_ITEMS = ("Attempts", "Connects", "LastError", "RetryDelay")
-"""Diagnostics of a tier's link to the tier below (:class:`tanklab.ua.Link`), one node each."""
-
-
-def link_status_paths(prefix: str) -> dict[str, str]:
-    """Path of each :data:`LINK_STATUS_ITEMS` node under ``prefix`` (``PLC.Status.PlantLink``)."""
-    return {item: f"{prefix}.{item}" for item in LINK_STATUS_ITEMS}
-
-
-def _link_status(b: _Builder, prefix: str, peer: str) -> None:
+def _link_status(b: TagList, prefix: str, peer: str) -> None:
     paths = link_status_paths(prefix)
     b.var(
         paths["Attempts"],
@@ -258,19 +111,7 @@ def _link_status(b: _Builder, prefix: str, peer: str) -> None:
     )
 
 
-IDENTITY_ITEMS = ("SiteName", "ConfigDigest", "Config")
-"""What each tier says about the site it runs (:mod:`tanklab.identity`), one node each."""
-
-TIER_ROOTS: dict[Tier, str] = {"plant": "Plant", "plc": "PLC", "supervisor": "Supervisor"}
-"""The root object of each tier's nodes."""
-
-
-def identity_paths(tier: Tier) -> dict[str, str]:
-    """Path of each :data:`IDENTITY_ITEMS` node of ``tier`` (``PLC.Identity.ConfigDigest``)."""
-    return {item: f"{TIER_ROOTS[tier]}.Identity.{item}" for item in IDENTITY_ITEMS}
-
-
-def _identity(b: _Builder, site: SiteConfig) -> None:
+def _identity(b: TagList, site: SiteConfig) -> None:
     """The identity nodes: constant for the life of the process, so their initial values."""
     paths = identity_paths(b.tier)
     ident = SiteIdentity.of(site)
@@ -298,16 +139,17 @@ def _identity(b: _Builder, site: SiteConfig) -> None:
 
 def plant_tags(site: SiteConfig) -> list[Tag]:
     """Nodes of the plant simulator for ``site``."""
-    b = _Builder("plant")
+    b = TagList("plant")
     _identity(b, site)
-    plant = site.plant
-    for tank in plant.tanks:
+    plant_cfg = site.plant
+    for tank in plant_cfg.tanks:
         i = tank.name[1:]
+        tp, lt = plant.tank(tank.name), plant.lt(tank.name)
         hmax = tank.height_max_m
         sw = tank.switch_levels()
         lo, hi = tank.transmitter_range()
         b.var(
-            f"Plant.{tank.name}.Level",
+            tp.level,
             DataType.DOUBLE,
             f"True level of {tank.name} [m].",
             unit="m",
@@ -315,17 +157,17 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             initial=tank.initial_level_m,
         )
         b.var(
-            f"Plant.{tank.name}.LSH",
+            tp.lsh,
             DataType.BOOLEAN,
             f"High level switch of {tank.name}: true at or above {sw.high_m:g} m.",
         )
         b.var(
-            f"Plant.{tank.name}.LSL",
+            tp.lsl,
             DataType.BOOLEAN,
             f"Low level switch of {tank.name}: true at or below {sw.low_m:g} m.",
         )
         b.var(
-            f"Plant.{tank.name}.Leak",
+            tp.leak,
             DataType.DOUBLE,
             f"Opening of the leak valve of {tank.name} to the drain, 0 (closed) .. 1.",
             unit="1",
@@ -334,15 +176,15 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             initial=tank.initial_leak_opening,
         )
         b.var(
-            f"Plant.{tank.name}.Disturbance",
+            tp.disturbance,
             DataType.DOUBLE,
             f"Extra inflow (+) or outflow (-) of {tank.name} [m^3/s]; an outflow stops at an empty tank.",
             unit="m^3/s",
-            eu_range=(-plant.disturbance_limit_m3_s, plant.disturbance_limit_m3_s),
+            eu_range=(-plant_cfg.disturbance_limit_m3_s, plant_cfg.disturbance_limit_m3_s),
             writers=OPERATOR_UP,
         )
         b.var(
-            f"Plant.LT{i}.PV",
+            lt.pv,
             DataType.DOUBLE,
             f"Measured level of {tank.name} (noise, quantization, faults) [m]; what the PLC reads.",
             unit="m",
@@ -350,26 +192,26 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             initial=tank.initial_level_m,
         )
         b.var(
-            f"Plant.LT{i}.Fault",
+            lt.fault,
             DataType.INT32,
             f"Injected fault of LT{i}: NONE, BIAS (+FaultValue m), STUCK (frozen), DRIFT (+FaultValue m/s).",
-            eu_range=_enum_range(SensorFault),
+            eu_range=enum_range(SensorFault),
             writers=OPERATOR_UP,
             enum=SensorFault,
             initial=int(SensorFault.NONE),
         )
         b.var(
-            f"Plant.LT{i}.FaultValue",
+            lt.fault_value,
             DataType.DOUBLE,
             f"Size of the LT{i} fault: bias [m] or drift rate [m/s].",
             unit="m or m/s",
             eu_range=(-1.0, 1.0),
             writers=OPERATOR_UP,
         )
-    for valve in plant.valves:
+    for valve in plant_cfg.valves:
         dest = valve.downstream or "the drain"
         b.var(
-            f"Plant.{valve.name}.Opening",
+            plant.valve_opening(valve.name),
             DataType.DOUBLE,
             f"Opening of valve {valve.name} ({valve.upstream} -> {dest}), 0 (clogged) .. 1.",
             unit="1",
@@ -377,9 +219,9 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             writers=OPERATOR_UP,
             initial=valve.initial_opening,
         )
-    for pump in plant.pumps:
+    for pump in plant_cfg.pumps:
         b.var(
-            f"Plant.{pump.name}.Command",
+            plant.pump(pump.name).command,
             DataType.DOUBLE,
             f"Command of pump {pump.name} into {pump.feeds} [{pump.unit}] ({pump.command_kind}).",
             unit=pump.unit,
@@ -388,16 +230,16 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             initial=pump.initial_command,
         )
         b.var(
-            f"Plant.{pump.name}.Flow",
+            plant.pump(pump.name).flow,
             DataType.DOUBLE,
             f"Actual flow of pump {pump.name} [m^3/s].",
             unit="m^3/s",
             eu_range=(0.0, pump.max_flow_m3_s),
             initial=pump.flow_of(pump.initial_command),
         )
-    b.var("Plant.Sim.Time", DataType.DOUBLE, "Model time since start [s].", unit="s", eu_range=(0.0, 1e12))
+    b.var(plant.sim_time, DataType.DOUBLE, "Model time since start [s].", unit="s", eu_range=(0.0, 1e12))
     b.var(
-        "Plant.Sim.Speed",
+        plant.sim_speed,
         DataType.DOUBLE,
         "Model seconds per wall second (0 in lock-step).",
         unit="1",
@@ -405,13 +247,13 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
         initial=1.0,
     )
     b.var(
-        "Plant.Sim.Watchdog",
+        plant.sim_watchdog,
         DataType.BOOLEAN,
         "True while the pumps are in their safe state because no command came in time.",
     )
-    n_t, n_p = len(plant.tanks), len(plant.pumps)
+    n_t, n_p = len(plant_cfg.tanks), len(plant_cfg.pumps)
     b.method(
-        "Plant.Sim.Advance",
+        plant.sim_advance,
         "Lock-step only: write the pump commands, integrate `seconds` of model time, return the new "
         "time and the transmitter readings (one round trip).",
         writers=frozenset({Role.PLC}),
@@ -428,15 +270,16 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             Argument("levels", DataType.DOUBLE_ARRAY, f"LT readings in tank order ({n_t} values) [m].", "m"),
         ),
     )
-    for item, text in (
+    balance: tuple[tuple[BalanceItem, str], ...] = (
         ("In", "Volume pumped in (plus positive disturbances)"),
         ("Out", "Volume out of the outlets (plus negative disturbances)"),
         ("Leaked", "Volume lost through the leak valves"),
         ("Spilled", "Volume spilled over the tank tops"),
         ("Stored", "Volume in the tanks now"),
         ("Error", "Stored + Out + Leaked + Spilled - In - initial stored (zero up to rounding)"),
-    ):
-        b.var(f"Plant.Balance.{item}", DataType.DOUBLE, f"{text} [m^3].", unit="m^3", eu_range=(-1e6, 1e6))
+    )
+    for item, text in balance:
+        b.var(plant.balance(item), DataType.DOUBLE, f"{text} [m^3].", unit="m^3", eu_range=(-1e6, 1e6))
     return b.tags
 
 
@@ -444,17 +287,17 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
     """Nodes of the soft PLC for ``site`` (needs a ``plc`` section)."""
     if site.plc is None:
         raise ValueError(f"site {site.name!r} has no plc section")
-    b = _Builder("plc")
+    b = TagList("plc")
     _identity(b, site)
-    plc = site.plc
-    for lp in plc.loops:
+    plc_cfg = site.plc
+    for lp in plc_cfg.loops:
         pump = site.plant.pump(lp.actuator)
         mv_lo = lp.mv_min if lp.mv_min is not None else pump.command_min
         mv_hi = lp.mv_max if lp.mv_max is not None else pump.command_max
         tank = site.plant.tank("T" + lp.pv[2:])
-        p = f"PLC.{lp.name}"
+        lpp = plc.loop(lp.name)
         b.var(
-            f"{p}.SP",
+            lpp.sp,
             DataType.DOUBLE,
             f"Setpoint of {tank.name}'s level [m]; range-checked.",
             unit="m",
@@ -463,42 +306,42 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
             initial=lp.setpoint_m,
         )
         b.var(
-            f"{p}.PV",
+            lpp.pv,
             DataType.DOUBLE,
             f"Process value: {lp.pv} as the loop used it this scan [m].",
             unit="m",
             eu_range=tank.transmitter_range(),
         )
         b.var(
-            f"{p}.MV",
+            lpp.mv,
             DataType.DOUBLE,
             f"Output written to {pump.name} this scan [{pump.unit}].",
             unit=pump.unit,
             eu_range=(mv_lo, mv_hi),
         )
         b.var(
-            f"{p}.Mode",
+            lpp.mode,
             DataType.INT32,
             "MANUAL (ManualMV drives), AUTO (the block drives), REMOTE (the supervisor's RemoteMV drives).",
-            eu_range=_enum_range(LoopMode),
+            eu_range=enum_range(LoopMode),
             writers=OPERATOR_UP | {Role.SUPERVISOR},
             restricted=((Role.SUPERVISOR, frozenset({int(LoopMode.AUTO), int(LoopMode.REMOTE)})),),
             enum=LoopMode,
             initial=int(lp.mode_enum),
         )
-        for item, text in (("SPLow", "lowest"), ("SPHigh", "highest")):
+        for path, low, text in ((lpp.sp_low, True, "lowest"), (lpp.sp_high, False, "highest")):
             b.var(
-                f"{p}.{item}",
+                path,
                 DataType.DOUBLE,
                 f"Program limit (engineer): the {text} setpoint an operator may write [m]; inside the "
                 f"config's {lp.sp_min_m:g} .. {lp.sp_max_m:g} m, and the current SP must stay inside.",
                 unit="m",
                 eu_range=(lp.sp_min_m, lp.sp_max_m),
                 writers=ENGINEER_ONLY,
-                initial=lp.sp_min_m if item == "SPLow" else lp.sp_max_m,
+                initial=lp.sp_min_m if low else lp.sp_max_m,
             )
         b.var(
-            f"{p}.ManualMV",
+            lpp.manual_mv,
             DataType.DOUBLE,
             f"Operator's output in MANUAL [{pump.unit}].",
             unit=pump.unit,
@@ -507,7 +350,7 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
             initial=lp.manual_mv if lp.manual_mv is not None else pump.initial_command,
         )
         b.var(
-            f"{p}.RemoteMV",
+            lpp.remote_mv,
             DataType.DOUBLE,
             f"Supervisor's output in REMOTE [{pump.unit}].",
             unit=pump.unit,
@@ -516,26 +359,24 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         )
         g = lp.gains
         for gain, text, val in (
-            ("Kp", "Applied proportional gain [MV unit per error unit]", g.kp if g else 0.0),
-            ("Ki", "Applied integral gain [MV unit per error unit per s]", g.ki if g else 0.0),
-            ("Kd", "Applied derivative gain [MV unit s per error unit]", g.kd if g else 0.0),
+            (lpp.kp, "Applied proportional gain [MV unit per error unit]", g.kp if g else 0.0),
+            (lpp.ki, "Applied integral gain [MV unit per error unit per s]", g.ki if g else 0.0),
+            (lpp.kd, "Applied derivative gain [MV unit s per error unit]", g.kd if g else 0.0),
         ):
-            b.var(f"{p}.{gain}", DataType.DOUBLE, f"{text}; changed only through SetGains.", initial=val)
+            b.var(gain, DataType.DOUBLE, f"{text}; changed only through SetGains.", initial=val)
         b.var(
-            f"{p}.GainSource",
+            lpp.gain_source,
             DataType.INT32,
             "Where the applied gains came from: FIXED (configured, or kept by ReleaseGains), SUPERVISOR, "
             "FALLBACK (supervisor lost), ENGINEER (an engineer's SetGains; the supervisor's SetGains "
             "is refused until ReleaseGains or ResetGains).",
-            eu_range=_enum_range(GainSource),
+            eu_range=enum_range(GainSource),
             enum=GainSource,
             initial=int(GainSource.FIXED),
         )
-        b.var(
-            f"{p}.Block", DataType.STRING, "Control block of the loop: pid, nlpi or mrac.", initial=lp.block
-        )
+        b.var(lpp.block, DataType.STRING, "Control block of the loop: pid, nlpi or mrac.", initial=lp.block)
         b.method(
-            f"{p}.SetGains",
+            lpp.set_gains,
             "Stage (Kp, Ki, Kd) for the next scan boundary. All finite and inside the gain box, or the "
             "whole call is refused (BadOutOfRange / BadTypeMismatch); BadInvalidState for a block "
             "without PID gains. An engineer's call is labelled ENGINEER and works whatever the "
@@ -549,40 +390,40 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
             ),
         )
         b.method(
-            f"{p}.ResetGains",
+            lpp.reset_gains,
             "Return the loop to its configured (FIXED) gains at the next scan boundary, bumplessly; "
             "GainSource FIXED (releases an ENGINEER hold). BadInvalidState for a block without PID "
             "gains or while a mode change of the loop is pending (written since the last scan).",
             writers=OPERATOR_UP,
         )
         b.method(
-            f"{p}.ReleaseGains",
+            lpp.release_gains,
             "Hand an ENGINEER loop back to adaptation: the applied gains stay, GainSource FIXED until "
             "the supervisor pushes again. No change on a loop not held; BadInvalidState for a block "
             "without PID gains.",
             writers=OPERATOR_UP,
         )
-    b.var("PLC.Status.Scan", DataType.UINT32, "Scan counter, +1 per completed scan.")
+    b.var(plc.scan, DataType.UINT32, "Scan counter, +1 per completed scan.")
     b.var(
-        "PLC.Status.ScanPeriod",
+        plc.scan_period,
         DataType.DOUBLE,
         "Scan period in model time [s].",
         unit="s",
         eu_range=(0.0, 3600.0),
-        initial=plc.scan_period_s,
+        initial=plc_cfg.scan_period_s,
     )
     b.var(
-        "PLC.Status.LastScanDuration",
+        plc.last_scan_duration,
         DataType.DOUBLE,
         "Wall time the last scan's work took [s].",
         unit="s",
         eu_range=(0.0, 3600.0),
     )
-    b.var("PLC.Status.Overruns", DataType.UINT32, "Scans whose work ran past the next deadline.")
-    b.var("PLC.Status.IoHealthy", DataType.BOOLEAN, "True while the field link to the plant works.")
-    _link_status(b, "PLC.Status.PlantLink", "plant")
+    b.var(plc.overruns, DataType.UINT32, "Scans whose work ran past the next deadline.")
+    b.var(plc.io_healthy, DataType.BOOLEAN, "True while the field link to the plant works.")
+    _link_status(b, plc.plant_link, "plant")
     b.var(
-        "PLC.Status.ModelTime",
+        plc.model_time,
         DataType.DOUBLE,
         "Model time of the last scan [s].",
         unit="s",
@@ -595,43 +436,44 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         writers=frozenset({Role.SUPERVISOR}),
     )
     b.var(
-        "PLC.Supervisor.Timeout",
+        plc.supervisor_timeout,
         DataType.DOUBLE,
         "Heartbeat timeout in model time [s].",
         unit="s",
         eu_range=(0.0, 3600.0),
-        initial=plc.watchdog.timeout_s,
+        initial=plc_cfg.watchdog.timeout_s,
     )
-    b.var("PLC.Supervisor.Alive", DataType.BOOLEAN, "False once no heartbeat change came within Timeout.")
+    b.var(plc.supervisor_alive, DataType.BOOLEAN, "False once no heartbeat change came within Timeout.")
     for tank in site.plant.tanks:
         i = tank.name[1:]
         b.var(
-            f"PLC.IO.LT{i}.PV",
+            plc.io(tank.name).pv,
             DataType.DOUBLE,
             f"LT{i} as the PLC read it this scan [m].",
             unit="m",
             eu_range=tank.transmitter_range(),
         )
-        b.var(f"PLC.IO.LT{i}.Good", DataType.BOOLEAN, f"The PLC's quality for LT{i}: true when usable.")
-    tripped_tanks = [il.tank for il in plc.interlocks]
+        b.var(plc.io(tank.name).good, DataType.BOOLEAN, f"The PLC's quality for LT{i}: true when usable.")
+    tripped_tanks = [il.tank for il in plc_cfg.interlocks]
     for tank_name in tripped_tanks:
         b.var(
-            f"PLC.Interlock.{tank_name}HH",
+            plc.interlock(tank_name),
             DataType.BOOLEAN,
             f"High-high trip of {tank_name} (latched): its pump is stopped.",
         )
     b.method(
-        "PLC.Interlock.Reset",
+        plc.interlock_reset,
         "Reset latched trips whose level is back below the reset level.",
         writers=OPERATOR_UP,
     )
+    alarms: tuple[tuple[AlarmKind, str], ...] = (("H", "high"), ("L", "low"), ("HH", "high-high"))
     for tank in site.plant.tanks:
-        for kind, text in (("H", "high"), ("L", "low"), ("HH", "high-high")):
-            b.var(f"PLC.Alarms.{tank.name}{kind}", DataType.BOOLEAN, f"{tank.name} level {text} alarm.")
-    for lp in plc.loops:
-        b.var(f"PLC.Alarms.{lp.name}PvBad", DataType.BOOLEAN, f"{lp.name}'s PV is bad (substitute output).")
-    b.var("PLC.Alarms.IoFault", DataType.BOOLEAN, "The field link to the plant is lost.")
-    b.var("PLC.Alarms.SupervisorLost", DataType.BOOLEAN, "The supervisor's heartbeat timed out.")
+        for kind, text in alarms:
+            b.var(plc.alarm(tank.name, kind), DataType.BOOLEAN, f"{tank.name} level {text} alarm.")
+    for lp in plc_cfg.loops:
+        b.var(plc.pv_bad_alarm(lp.name), DataType.BOOLEAN, f"{lp.name}'s PV is bad (substitute output).")
+    b.var(plc.io_fault, DataType.BOOLEAN, "The field link to the plant is lost.")
+    b.var(plc.supervisor_lost, DataType.BOOLEAN, "The supervisor's heartbeat timed out.")
     return b.tags
 
 
@@ -639,72 +481,72 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
     """Nodes of the supervisor for ``site`` (needs ``plc`` and ``supervisor`` sections)."""
     if site.supervisor is None or site.plc is None:
         raise ValueError(f"site {site.name!r} has no supervisor section")
-    b = _Builder("supervisor")
+    b = TagList("supervisor")
     _identity(b, site)
     sup = site.supervisor
     pumps = ", ".join(site.pump_names)
     zs = ", ".join(sup.mpc.controlled)
     b.var(
-        "Supervisor.Mode",
+        supervisor.mode,
         DataType.INT32,
         "OFF, ADVISORY (compute and publish), ADAPTIVE_PID (push PID gains), MPC (drive the pumps).",
-        eu_range=_enum_range(SupervisorMode),
+        eu_range=enum_range(SupervisorMode),
         writers=ENGINEER_ONLY,
         enum=SupervisorMode,
         initial=int(sup.mode_enum),
     )
-    b.var("Supervisor.Cycle", DataType.UINT32, "Supervisor cycles run.")
-    b.var("Supervisor.PlcConnected", DataType.BOOLEAN, "True while the PLC link is up and fresh.")
-    _link_status(b, "Supervisor.PlcLink", "PLC")
+    b.var(supervisor.cycle, DataType.UINT32, "Supervisor cycles run.")
+    b.var(supervisor.plc_connected, DataType.BOOLEAN, "True while the PLC link is up and fresh.")
+    _link_status(b, supervisor.plc_link, "PLC")
     b.var(
-        "Supervisor.MPC.SolveTime",
+        supervisor.mpc_solve_time,
         DataType.DOUBLE,
         "QP solve time of the last step (OSQP's) [s].",
         unit="s",
         eu_range=(0.0, 60.0),
     )
-    b.var("Supervisor.MPC.Iterations", DataType.UINT32, "Solver iterations of the last step.")
+    b.var(supervisor.mpc_iterations, DataType.UINT32, "Solver iterations of the last step.")
     b.var(
-        "Supervisor.MPC.Status",
+        supervisor.mpc_status,
         DataType.INT32,
         "Outcome of the last MPC step.",
-        eu_range=_enum_range(MpcStatus),
+        eu_range=enum_range(MpcStatus),
         enum=MpcStatus,
         initial=int(MpcStatus.NOT_RUN),
     )
-    b.var("Supervisor.MPC.Failures", DataType.UINT32, "Steps whose QP failed (shifted plan used).")
+    b.var(supervisor.mpc_failures, DataType.UINT32, "Steps whose QP failed (shifted plan used).")
     b.var(
-        "Supervisor.MPC.Horizon", DataType.UINT32, "Prediction horizon Np [samples].", initial=sup.mpc.horizon
+        supervisor.mpc_horizon, DataType.UINT32, "Prediction horizon Np [samples].", initial=sup.mpc.horizon
     )
     b.var(
-        "Supervisor.MPC.PlannedMV",
+        supervisor.mpc_planned_mv,
         DataType.DOUBLE_ARRAY,
         f"Planned pump flows [m^3/s], step-major, pumps inner ({pumps}); Np x pumps values.",
     )
     b.var(
-        "Supervisor.MPC.PredictedPV",
+        supervisor.mpc_predicted_pv,
         DataType.DOUBLE_ARRAY,
         f"Predicted controlled levels [m], step-major, levels inner ({zs}); Np x levels values.",
     )
     for lp in site.plc.loops:
-        p = f"Supervisor.RLS.{lp.name}"
+        rp = supervisor.rls(lp.name)
         b.var(
-            f"{p}.Theta",
+            rp.theta,
             DataType.DOUBLE_ARRAY,
             "Estimated gains [Kp, Ki, Kd] per loop used (own loop first in diagonal mode).",
         )
         b.var(
-            f"{p}.CovarianceTrace",
+            rp.covariance_trace,
             DataType.DOUBLE,
             "Trace of the RLS covariance.",
             unit="1",
             eu_range=(0.0, 1e12),
         )
-        b.var(f"{p}.Accepted", DataType.UINT32, "Gain sets pushed and accepted.")
-        b.var(f"{p}.Rejected", DataType.UINT32, "Candidate gain sets rejected by a guard or the PLC.")
-        b.var(f"{p}.LastReason", DataType.STRING, "Why the last candidate was rejected (empty if accepted).")
+        b.var(rp.accepted, DataType.UINT32, "Gain sets pushed and accepted.")
+        b.var(rp.rejected, DataType.UINT32, "Candidate gain sets rejected by a guard or the PLC.")
+        b.var(rp.last_reason, DataType.STRING, "Why the last candidate was rejected (empty if accepted).")
         b.var(
-            f"{p}.Excitation",
+            rp.excitation,
             DataType.DOUBLE,
             "Smallest eigenvalue of the remembered data's information matrix (dimensionless): how well "
             "the weakest gain direction is measured.",
@@ -712,7 +554,7 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
             eu_range=(0.0, 1e12),
         )
         b.var(
-            f"{p}.ConditionNumber",
+            rp.condition_number,
             DataType.DOUBLE,
             "Condition number of the estimator's information matrix (prior + data).",
             unit="1",
@@ -720,7 +562,7 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
             initial=1.0,
         )
         b.var(
-            f"{p}.BoxDistance",
+            rp.box_distance,
             DataType.DOUBLE_ARRAY,
             "Distance of each estimated gain [Kp, Ki, Kd] to the nearest gain-box limit, as a fraction "
             "of the box width (0 on a limit, 0.5 in the middle).",
@@ -728,25 +570,25 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
             eu_range=(0.0, 0.5),
         )
         b.var(
-            f"{p}.OnBoxLimit",
+            rp.on_box_limit,
             DataType.BOOLEAN,
             "Diagnostic: the estimate or the applied gains sit on a gain-box limit (the box, not the "
             "data, decides that gain).",
         )
         b.var(
-            f"{p}.Prior",
+            rp.prior,
             DataType.DOUBLE_ARRAY,
             "Model-based (SIMC) gains [Kp, Ki, Kd] the estimate is regularised toward.",
         )
         b.var(
-            f"{p}.NoiseStd",
+            rp.noise_std,
             DataType.DOUBLE,
             "Estimated level-transmitter noise of the loop's PV [m] (from the model's prediction errors).",
             unit="m",
             eu_range=(0.0, 1.0),
         )
     b.var(
-        "Supervisor.Estimator.Disturbance",
+        supervisor.disturbance,
         DataType.DOUBLE_ARRAY,
         f"Estimated input disturbances [m^3/s], one per disturbance state (pumps: {pumps}).",
     )
@@ -820,7 +662,7 @@ def render_markdown(site: SiteConfig) -> str:
                 ", ".join(
                     r.value
                     + (
-                        " (" + "/".join(_enum_name(t, v) for v in sorted(limits[r])) + " only)"
+                        " (" + "/".join(enum_name(t, v) for v in sorted(limits[r])) + " only)"
                         if r in limits
                         else ""
                     )

@@ -14,8 +14,10 @@ Server side
     BadWriteNotSupported; a read-only node -> BadNotWritable; a role not among the tag's
     writers (or a restricted role moving the value outside its allowed set) ->
     BadUserAccessDenied; the tier's own check may refuse with any status. A refused write leaves
-    the old value. Writes of a batch are judged one by one (each item gets its own status;
-    accepted items are stored even if others are refused: a batch is not atomic). A
+    the old value. The tier's check is the handler it attached to that tag
+    (:class:`tanklab.handlers.HandlerTable`, one per writable tag). Writes of a batch are
+    judged one by one (each item gets its own status; accepted items are stored even if others
+    are refused: a batch is not atomic). A
     client-supplied SourceTimestamp is ignored: the server stamps its own time. Method calls get
     the same role check and precise status codes. Every write and call, accepted or refused, is
     recorded in the tier's :class:`~tanklab.audit.AuditLog`.
@@ -43,7 +45,7 @@ import contextvars
 import logging
 import math
 import random
-from collections.abc import Awaitable, Callable, Iterable, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -80,7 +82,8 @@ MethodHandler = Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]
 """A method implementation: ``async (*python_args) -> outputs or StatusCode``."""
 
 WriteHandler = Callable[[Tag, Any], ua.StatusCode | None]
-"""A tier's own check and apply for a validated write: None accepts, a StatusCode refuses."""
+"""A tier's own check and apply for a validated write of one tag (one handler per writable tag,
+:class:`tanklab.handlers.HandlerTable`): None accepts, a StatusCode refuses."""
 
 
 @dataclass
@@ -238,7 +241,7 @@ async def _add_variable(server: Server, idx: int, parent: Node, tag: Tag) -> Nod
 async def build_nodes(
     server: Server,
     tags: Iterable[Tag],
-    methods: dict[str, MethodHandler] | None = None,
+    methods: Mapping[str, MethodHandler] | None = None,
     audit: AuditLog | None = None,
 ) -> tuple[int, dict[str, Node]]:
     """Create every tag's node on ``server`` under the namespace ``urn:tanklab``.
@@ -366,12 +369,12 @@ class WriteGuard(AttributeService):
         self,
         base: AttributeService,
         tags_by_nodeid: dict[ua.NodeId, Tag],
-        on_write: WriteHandler,
+        writes: Mapping[str, WriteHandler],
         audit: AuditLog | None = None,
     ):
         super().__init__(base._aspace)
         self._tags = tags_by_nodeid
-        self._on_write = on_write
+        self._writes = writes
         self._audit = audit
         self.refused = 0
         self.accepted = 0
@@ -431,20 +434,24 @@ class WriteGuard(AttributeService):
         if bad is not None:
             return bad
         assert dv.Value is not None
-        return self._on_write(tag, dv.Value.Value)
+        handler = self._writes.get(tag.path)
+        if handler is None:  # check_handlers at start makes this unreachable for the contract
+            return ua.StatusCode(ua.StatusCodes.BadNotWritable)
+        return handler(tag, dv.Value.Value)
 
 
 def install_write_guard(
     server: Server,
     tags: Iterable[Tag],
     nodes: dict[str, Node],
-    on_write: WriteHandler,
+    writes: Mapping[str, WriteHandler],
     audit: AuditLog | None = None,
 ) -> WriteGuard:
-    """Put a :class:`WriteGuard` in front of ``server``'s attribute service."""
+    """Put a :class:`WriteGuard` in front of ``server``'s attribute service; ``writes`` holds the
+    handler of each writable variable, by path."""
     by_id = {nodes[t.path].nodeid: t for t in tags if t.path in nodes and t.kind == "variable"}
     iserver = server.iserver
-    guard = WriteGuard(iserver.attribute_service, by_id, on_write, audit)
+    guard = WriteGuard(iserver.attribute_service, by_id, writes, audit)
     iserver.attribute_service = guard
     return guard
 

@@ -62,6 +62,7 @@ from cryptography import x509
 
 from tanklab.audit import AuditLog, AuditRecord
 from tanklab.errors import SecurityError
+from tanklab.handlers import check_handlers
 from tanklab.home import SecurityHome, default_home
 from tanklab.pki import Pki
 from tanklab.tags import APPLICATION_URIS, NAMESPACE_URI, Role, Tag, tags_by_path
@@ -667,10 +668,16 @@ async def start_tier_server(
     name: str,
     security: ServerSecurity,
     tags: list[Tag],
-    on_write: WriteHandler,
-    methods: dict[str, MethodHandler] | None = None,
+    writes: Mapping[str, WriteHandler],
+    methods: Mapping[str, MethodHandler] | None = None,
 ) -> TierServer:
-    """Create, secure, populate and start the server of ``tier`` at ``url``."""
+    """Create, secure, populate and start the server of ``tier`` at ``url``.
+
+    ``writes`` and ``methods`` attach one handler to each writable variable and each method of
+    ``tags``, by path (:class:`tanklab.handlers.HandlerTable`); a tag without its handler, or a
+    handler without its tag, is refused before anything listens (ValueError).
+    """
+    check_handlers(tags, writes, methods or {})
     server = TanklabServer()
     await server.init()
     server.set_endpoint(url)
@@ -678,7 +685,7 @@ async def start_tier_server(
     await server.set_application_uri(APPLICATION_URIS[tier])
     audit = await secure_server(server, tier, security)
     _, nodes = await build_nodes(server, tags, methods, audit)
-    guard = install_write_guard(server, tags, nodes, on_write, audit)
+    guard = install_write_guard(server, tags, nodes, writes, audit)
     publisher = Publisher(server, tags_by_path(tags), nodes)
     await server.start()
     return TierServer(server, nodes, publisher, guard, audit)

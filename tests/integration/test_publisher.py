@@ -16,7 +16,7 @@ from asyncua import ua
 from helpers import ROOT, free_port, secure, server_security
 from tanklab.config import load_site
 from tanklab.tags import Tag, plc_tags
-from tanklab.ua import MethodHandler
+from tanklab.ua import MethodHandler, WriteHandler
 from tanklab.ua_security import start_tier_server
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
@@ -33,6 +33,7 @@ def _accept(tag: Tag, value: Any) -> ua.StatusCode | None:
 async def test_publish_stores_only_changes_and_sees_client_writes() -> None:
     tags = plc_tags(SITE)
     methods: dict[str, MethodHandler] = {t.path: _nothing for t in tags if t.kind == "method"}
+    writes: dict[str, WriteHandler] = {t.path: _accept for t in tags if t.kind == "variable" and t.writable}
     url = f"opc.tcp://127.0.0.1:{free_port()}/tanklab/plc"
     tier = await start_tier_server(
         "plc",
@@ -40,7 +41,7 @@ async def test_publish_stores_only_changes_and_sees_client_writes() -> None:
         name="publisher test",
         security=server_security(),
         tags=tags,
-        on_write=_accept,
+        writes=writes,
         methods=methods,
     )
     pub, sp, pv = tier.publisher, tier.nodes["PLC.LIC1.SP"].nodeid, tier.nodes["PLC.LIC1.PV"].nodeid

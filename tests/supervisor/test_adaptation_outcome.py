@@ -38,6 +38,7 @@ import numpy as np
 import pytest
 
 from supervisor.adaptation import PidGainAdapter
+from supervisor.server import status_values
 from tankctl.cosim import CoSimulation
 from tankctl.simulate import apply_event, apply_initial
 from tanklab.config import load_site
@@ -237,7 +238,7 @@ def test_the_health_nodes_are_published_declared_and_in_range() -> None:
     cs = CoSimulation(site, supervisor_mode="ADAPTIVE_PID")
     cs.run(200.0)
     assert cs.supervisor is not None
-    values = cs.supervisor.values()
+    values = status_values(cs.supervisor.status())
     tags = tags_by_path(all_tags(site))
     for loop in ("LIC1", "LIC2"):
         p = f"Supervisor.RLS.{loop}"
