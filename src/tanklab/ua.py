@@ -738,7 +738,7 @@ class Link:
         self.healthy = False
         client, self.client = self.client, None
         if client is not None:
-            await _quiet_disconnect(client)
+            await quiet_disconnect(client)
         # The first reconnection attempt is due at once: most losses are one timed-out request.
         self._next_attempt = -math.inf
         return LinkError(f"{self.name} link to {self.url}: {what} failed: {reason}")
@@ -790,10 +790,11 @@ class Link:
         self.healthy = False
         client, self.client = self.client, None
         if client is not None:
-            await _quiet_disconnect(client)
+            await quiet_disconnect(client)
 
 
-async def _quiet_disconnect(client: Client) -> None:
-    # The peer may already be gone: nothing to report about a failed goodbye.
+async def quiet_disconnect(client: Client, timeout_s: float = 1.0) -> None:
+    """Disconnect ``client``, waiting at most ``timeout_s`` [s], never raising: the peer may
+    already be gone, and a failed goodbye has nothing to tell anyone."""
     with contextlib.suppress(Exception):
-        await asyncio.wait_for(client.disconnect(), 1.0)
+        await asyncio.wait_for(client.disconnect(), timeout_s)
