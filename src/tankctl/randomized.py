@@ -61,8 +61,8 @@ from scipy.optimize import root
 from plant_sim.linearize import level_rhs
 from plant_sim.models import FloatArray, PlantInputs, TankNetwork, default_inputs
 from plc_emulator.program import GainStatus
-from tankctl.cosim import CoSimulation
-from tankctl.simulate import apply_event as apply_scenario_event
+from tankctl.cosim import CoSimEvents, CoSimulation
+from tankctl.events import apply_event as apply_scenario_event
 from tanklab.config import SiteConfig
 from tanklab.scenario import (
     DisturbanceEvent,
@@ -666,7 +666,7 @@ def apply_event(cs: CoSimulation, ev: RandomEvent) -> str | None:
         if status is not GainStatus.STAGED:
             return f"t = {ev.at_s:g} s {describe(ev)}: {status.value}"
     elif not isinstance(ev, InterlockResetEvent):
-        apply_scenario_event(cs, ev)  # the scenario kinds, exactly as `tankctl simulate` applies them
+        apply_scenario_event(CoSimEvents(cs), ev)  # the scenario kinds: the one table (tankctl.events)
     else:
         cs.plc.reset_interlocks()
     return None

@@ -58,7 +58,8 @@ from numpy.typing import NDArray
 from plant_sim.models import PlantInputs
 from plc_emulator.mrac import Mrac
 from plc_emulator.nlpi import AdaptiveNlPi, NlPi
-from tankctl.cosim import CoSimulation
+from tankctl.cosim import CoSimEvents, CoSimulation
+from tankctl.events import apply_event as apply_events_table
 from tankctl.limits import LevelStep, MinTimeResult, imc_tf_experiment, min_time_step
 from tankctl.metrics import (
     LoopMetrics,
@@ -74,7 +75,7 @@ from tankctl.metrics import (
 # The commands live in tankctl.simulate_cli (light: no co-simulation import); re-exported.
 from tankctl.simulate_cli import compare_command, register, simulate_command
 from tanklab.config import ConfigError, SiteConfig, site_from_mapping
-from tanklab.enums import LoopMode, SensorFault, SupervisorMode
+from tanklab.enums import LoopMode
 from tanklab.scenario import (
     DisturbanceEvent,
     Event,
@@ -84,7 +85,6 @@ from tanklab.scenario import (
     LoopModeEvent,
     Scenario,
     SetpointEvent,
-    SupervisorModeEvent,
     ValveEvent,
     Variant,
     load_scenario,
@@ -304,27 +304,9 @@ def _describe(ev: Event) -> str:
 
 
 def apply_event(cs: CoSimulation, ev: Event) -> None:
-    """Apply one scenario event to the co-simulation, as the operator's client would write it."""
-    if isinstance(ev, SetpointEvent):
-        cs.plc.set_sp(ev.loop, ev.value_m)
-    elif isinstance(ev, LeakEvent):
-        cs.plant.set_leak(ev.tank, ev.opening)
-    elif isinstance(ev, ValveEvent):
-        cs.plant.set_valve(ev.valve, ev.opening)
-    elif isinstance(ev, FaultEvent):
-        cs.plant.set_fault(ev.transmitter, SensorFault[ev.fault], ev.value)
-    elif isinstance(ev, DisturbanceEvent):
-        cs.plant.set_disturbance(ev.tank, ev.flow_m3_s)
-    elif isinstance(ev, LoopModeEvent):
-        # Mode first, then the output (the MANUAL switch is bumpless and starts from the MV).
-        cs.plc.set_mode(ev.loop, LoopMode[ev.mode])
-        if ev.mv_percent is not None:
-            lp = cs.plc.loop(ev.loop)
-            cs.plc.set_manual_mv(ev.loop, lp.mv_min + ev.mv_percent / 100.0 * (lp.mv_max - lp.mv_min))
-    elif isinstance(ev, SupervisorModeEvent):
-        if cs.supervisor is None:
-            raise ValueError("the site has no supervisor")
-        cs.supervisor.request_mode(SupervisorMode[ev.mode])
+    """Apply one scenario event to the co-simulation, as the operator's client would write it
+    (the one table of event kinds: :func:`tankctl.events.apply_event`)."""
+    apply_events_table(CoSimEvents(cs), ev)
 
 
 def _gain_names(site: SiteConfig) -> list[tuple[str, str, str]]:

@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 
+from tankctl.events import apply_event
 from tankctl.ops.client import TierClient
 from tankctl.ops.errors import SiteMismatchError, StoppedError, UnreachableError, UsageError
 from tankctl.ops.options import StackOptions, stack_command
@@ -71,28 +72,39 @@ def _describe_event(ev: Event) -> str:
     return f"supervisor mode {ev.mode}"
 
 
-async def _apply_event(clients: Mapping[Tier, TierClient], ev: Event) -> list[str]:
-    """Write one event to the tier that owns its nodes; the lines say what was written."""
-    plant = clients.get("plant")
-    if isinstance(ev, SetpointEvent):
-        return [await write_and_tell(clients["plc"], f"PLC.{ev.loop}.SP", ev.value_m)]
-    if isinstance(ev, LoopModeEvent):
-        return await apply_loop_mode(clients["plc"], ev.loop, LoopMode[ev.mode], ev.mv_percent)
-    if isinstance(ev, SupervisorModeEvent):
-        return [await write_and_tell(clients["supervisor"], "Supervisor.Mode", int(SupervisorMode[ev.mode]))]
-    assert plant is not None
-    if isinstance(ev, LeakEvent):
-        return [await write_and_tell(plant, f"Plant.{ev.tank}.Leak", ev.opening)]
-    if isinstance(ev, ValveEvent):
-        return [await write_and_tell(plant, f"Plant.{ev.valve}.Opening", ev.opening)]
-    if isinstance(ev, DisturbanceEvent):
-        return [await write_and_tell(plant, f"Plant.{ev.tank}.Disturbance", ev.flow_m3_s)]
-    # A fault: its size first, then its kind, so the fault starts with the right value.
-    i = ev.transmitter[2:]
-    return [
-        await write_and_tell(plant, f"Plant.LT{i}.FaultValue", ev.value),
-        await write_and_tell(plant, f"Plant.LT{i}.Fault", int(SensorFault[ev.fault])),
-    ]
+class LiveEvents:
+    """The scenario verbs (:class:`tankctl.events.EventTarget`) over OPC UA: each writes the
+    nodes of the tier that owns them and returns the lines saying what was written."""
+
+    def __init__(self, clients: Mapping[Tier, TierClient]) -> None:
+        self.clients = clients
+
+    async def setpoint(self, loop: str, value_m: float) -> list[str]:
+        return [await write_and_tell(self.clients["plc"], f"PLC.{loop}.SP", value_m)]
+
+    async def leak(self, tank: str, opening: float) -> list[str]:
+        return [await write_and_tell(self.clients["plant"], f"Plant.{tank}.Leak", opening)]
+
+    async def valve(self, valve: str, opening: float) -> list[str]:
+        return [await write_and_tell(self.clients["plant"], f"Plant.{valve}.Opening", opening)]
+
+    async def disturbance(self, tank: str, flow_m3_s: float) -> list[str]:
+        return [await write_and_tell(self.clients["plant"], f"Plant.{tank}.Disturbance", flow_m3_s)]
+
+    async def fault(self, transmitter: str, fault: SensorFault, value: float) -> list[str]:
+        # Its size first, then its kind, so the fault starts with the right value.
+        i = transmitter[2:]
+        plant = self.clients["plant"]
+        return [
+            await write_and_tell(plant, f"Plant.LT{i}.FaultValue", value),
+            await write_and_tell(plant, f"Plant.LT{i}.Fault", int(fault)),
+        ]
+
+    async def loop_mode(self, loop: str, mode: LoopMode, mv_percent: float | None) -> list[str]:
+        return await apply_loop_mode(self.clients["plc"], loop, mode, mv_percent)
+
+    async def supervisor_mode(self, mode: SupervisorMode) -> list[str]:
+        return [await write_and_tell(self.clients["supervisor"], "Supervisor.Mode", int(mode))]
 
 
 def _initial_events(scenario: Scenario) -> list[Event]:
@@ -207,6 +219,7 @@ async def _play(
     until_end: bool,
 ) -> int:
     plant = clients["plant"]
+    target = LiveEvents(clients)
 
     async def now() -> float:
         t = (await plant.read(["Plant.Sim.Time"]))["Plant.Sim.Time"]
@@ -249,12 +262,12 @@ async def _play(
                     await asyncio.wait_for(stop.wait(), wait)
 
         for ev in initial:
-            say(await now() - t0, f"initial {_describe_event(ev)}", await _apply_event(clients, ev))
+            say(await now() - t0, f"initial {_describe_event(ev)}", await apply_event(target, ev))
         for ev in events:
             if until_end and ev.at_s > scenario.duration_s:
                 break
             t = await wait_for_model_time(ev.at_s)
-            say(t, f"@{ev.at_s:g} s {_describe_event(ev)}", await _apply_event(clients, ev))
+            say(t, f"@{ev.at_s:g} s {_describe_event(ev)}", await apply_event(target, ev))
             applied += 1
         if until_end:
             t = await wait_for_model_time(scenario.duration_s)
