@@ -19,10 +19,10 @@ from tankctl.ops.errors import (
     UnreachableError,
     describe_failure,
 )
-from tanklab.errors import SecurityError, TanklabError
+from tanklab.errors import LinkError, SecurityError, TanklabError
 from tanklab.tags import NAMESPACE_URI, Tag, Tier, identity_paths
-from tanklab.ua import new_client, quiet_disconnect, write_value
-from tanklab.ua_security import cli_identity, secure_client
+from tanklab.ua import ConnectError, Link
+from tanklab.ua_security import cli_identity, client_setup
 
 if TYPE_CHECKING:
     from tankctl.ops.stack import Stack
@@ -88,7 +88,9 @@ class BrowsedNode:
 
 
 class TierClient:
-    """An OPC UA client of one tier: connect (bounded), Read, Write, Browse.
+    """An operator command's client of one tier: a :class:`tanklab.ua.Link` (the one OPC UA
+    client wrapper: connection, bounded Read, Write and Call, quiet disconnect) that connects
+    once, checks the tier's site identity, browses, and turns every failure into one exception.
 
     Every request is bounded by ``timeout_s``; any failure to connect or to get an answer
     raises :class:`UnreachableError` naming the tier and its URL. A Bad status on a write raises
@@ -101,8 +103,16 @@ class TierClient:
         self.stack = stack
         self.timeout_s = stack.timeout_s
         self.identity = stack.identity or cli_identity()
-        self._client: Client | None = None
-        self.idx = 0
+        # The link's own tags are none: the site (and so the tags) may be known only once this
+        # tier answered; writes pass the stack's tags.
+        self.link = Link(
+            url,
+            {},
+            name=f"tankctl {tier}",
+            setup=client_setup(self.identity),
+            timeout_s=self.timeout_s,
+            client_name="tankctl",
+        )
 
     @property
     def tags(self) -> dict[str, Tag]:
@@ -110,45 +120,25 @@ class TierClient:
         return self.stack.tags(self.tier)
 
     @property
+    def idx(self) -> int:
+        """The namespace index of ``urn:tanklab`` on the tier (0 before connecting)."""
+        return self.link.idx or 0
+
+    @property
     def client(self) -> Client:
-        if self._client is None:
+        if self.link.client is None:
             raise UnreachableError(self.tier, self.url, "not connected")
-        return self._client
+        return self.link.client
 
     async def connect(self) -> TierClient:
         """Connect, look the namespace index up and check the tier's site identity with
         :meth:`Stack.accept` (each within the timeout); a no-op when connected."""
-        if self._client is not None:
+        if self.link.healthy:
             return self
-        client = new_client(self.url, self.timeout_s)
-        client.name = "tankctl"
         try:
-            await asyncio.wait_for(secure_client(client, self.identity), self.timeout_s)
-            await asyncio.wait_for(client.connect(), self.timeout_s)
-        except SecurityError:
-            await quiet_disconnect(client)
-            raise
-        except ua.UaStatusCodeError as e:
-            await quiet_disconnect(client)
-            status = ua.StatusCode(e.code).name
-            if status in LOGIN_REFUSALS:
-                creds = self.identity.credentials
-                user = creds.username if creds is not None else None
-                raise LoginRefusedError(user, self.tier, self.url, status) from None
-            raise UnreachableError(self.tier, self.url, status) from None
-        except Exception as e:
-            await quiet_disconnect(client)
-            raise UnreachableError(self.tier, self.url, describe_failure(e, self.timeout_s)) from None
-        try:
-            idx = await asyncio.wait_for(client.get_namespace_index(NAMESPACE_URI), self.timeout_s)
-        except Exception as e:
-            await quiet_disconnect(client)
-            # asyncua answers a missing namespace URI with list.index's ValueError.
-            missing = f"no {NAMESPACE_URI} namespace" if isinstance(e, ValueError) else None
-            raise UnreachableError(
-                self.tier, self.url, missing or describe_failure(e, self.timeout_s)
-            ) from None
-        self._client, self.idx = client, int(idx)
+            await self.link.connect()
+        except ConnectError as e:
+            raise self._connect_failure(e.stage, e.cause) from None
         paths = identity_paths(self.tier)
         if self.stack.resolved:  # the Config text is only needed to learn the site
             del paths["Config"]
@@ -160,11 +150,27 @@ class TierClient:
             raise
         return self
 
+    def _connect_failure(self, stage: str, cause: BaseException) -> Exception:
+        """What a failed connection attempt tells the operator: the security error as is, a
+        refused login, or why the tier is unreachable."""
+        if isinstance(cause, SecurityError):
+            return cause
+        if stage == "namespace":
+            # asyncua answers a missing namespace URI with list.index's ValueError.
+            missing = f"no {NAMESPACE_URI} namespace" if isinstance(cause, ValueError) else None
+            return UnreachableError(self.tier, self.url, missing or describe_failure(cause, self.timeout_s))
+        if isinstance(cause, ua.UaStatusCodeError):
+            status = ua.StatusCode(cause.code).name
+            if status in LOGIN_REFUSALS:
+                creds = self.identity.credentials
+                user = creds.username if creds is not None else None
+                return LoginRefusedError(user, self.tier, self.url, status)
+            return UnreachableError(self.tier, self.url, status)
+        return UnreachableError(self.tier, self.url, describe_failure(cause, self.timeout_s))
+
     async def close(self) -> None:
         """Disconnect (idempotent, never raises)."""
-        client, self._client = self._client, None
-        if client is not None:
-            await quiet_disconnect(client)
+        await self.link.close()
 
     async def __aenter__(self) -> TierClient:
         return await self.connect()
@@ -180,15 +186,28 @@ class TierClient:
             await self.close()
             raise UnreachableError(self.tier, self.url, describe_failure(e, self.timeout_s)) from None
 
+    async def _linked(self, aw: Awaitable[_T]) -> _T:
+        """Await a request of the link (bounded by it); its LinkError becomes UnreachableError
+        (the link has dropped the connection already)."""
+        try:
+            return await aw
+        except LinkError as e:
+            cause = e.__cause__
+            reason = "not connected" if cause is None else describe_failure(cause, self.timeout_s)
+            raise UnreachableError(self.tier, self.url, reason) from None
+
     def node(self, path: str) -> Node:
         """The node of a tag path (string NodeId in the tanklab namespace)."""
-        return self.client.get_node(ua.NodeId(path, self.idx))
+        try:
+            return self.link.node(path)
+        except LinkError:
+            raise UnreachableError(self.tier, self.url, "not connected") from None
 
     async def read(self, paths: Sequence[str]) -> dict[str, Any]:
         """Values of ``paths`` in one Read; a node answering a Bad status reads as None."""
         if not paths:
             return {}
-        dvs = await self._bounded(self.client.read_attributes([self.node(p) for p in paths]))
+        dvs = await self._linked(self.link.read(paths))
         out: dict[str, Any] = {}
         for path, dv in zip(paths, dvs, strict=True):
             bad = dv.StatusCode is not None and dv.StatusCode.is_bad()
@@ -198,28 +217,20 @@ class TierClient:
     async def write(self, path: str, value: Any) -> None:
         """Write one value with the tag's exact type; a Bad status raises :class:`RefusedError`."""
         tag = self.tags[path]
-        status = await self._bounded(write_value(self.node(path), tag, value))
+        (status,) = await self._linked(self.link.write({path: value}, self.tags))
         if not status.is_good():
             raise RefusedError(path, show(tag, value), status.name)
 
     async def call(self, path: str, *args: float, hints: Mapping[str, str] | None = None) -> None:
         """Call the method ``path`` with Double arguments; a Bad status raises
         :class:`CallRefusedError` (with ``hints[status]`` as its reason, when given)."""
-        tag = self.tags[path]
-        parent = self.node(tag.parent)
         variants = [ua.Variant(float(a), ua.VariantType.Double) for a in args]
-
-        async def call() -> str | None:
-            try:
-                await parent.call_method(ua.NodeId(path, self.idx), *variants)
-            except ua.UaStatusCodeError as e:
-                return str(ua.StatusCode(e.code).name)
-            return None
-
-        status = await self._bounded(call())
-        if status is not None:
+        try:
+            await self._linked(self.link.call(path, *variants))
+        except ua.UaStatusCodeError as e:
+            status = str(ua.StatusCode(e.code).name)
             shown = ", ".join(f"{a:g}" for a in args)
-            raise CallRefusedError(path, shown, status, (hints or {}).get(status, ""))
+            raise CallRefusedError(path, shown, status, (hints or {}).get(status, "")) from None
 
     async def eu_range(self, path: str) -> tuple[float, float] | None:
         """The EURange property of a node as the server has it (None if it has none)."""
