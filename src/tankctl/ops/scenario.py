@@ -23,9 +23,7 @@ from tanklab.enums import LoopMode, SensorFault, SupervisorMode
 from tanklab.errors import TanklabError
 from tanklab.identity import SiteIdentity
 from tanklab.scenario import (
-    DisturbanceEvent,
     Event,
-    FaultEvent,
     LeakEvent,
     LoopModeEvent,
     Scenario,
@@ -55,21 +53,35 @@ def _event_tiers(scenario: Scenario) -> set[Tier]:
     return tiers
 
 
+class _Described:
+    """An event as ``scenario run`` prints it: the verbs of the one table of event kinds
+    (:class:`tankctl.events.EventTarget`) returning text."""
+
+    def setpoint(self, loop: str, value_m: float) -> str:
+        return f"setpoint {loop} {value_m:g} m"
+
+    def leak(self, tank: str, opening: float) -> str:
+        return f"leak {tank} {opening:g}"
+
+    def valve(self, valve: str, opening: float) -> str:
+        return f"valve {valve} {opening:g}"
+
+    def disturbance(self, tank: str, flow_m3_s: float) -> str:
+        return f"disturbance {tank} {flow_m3_s:g} m^3/s"
+
+    def fault(self, transmitter: str, fault: SensorFault, value: float) -> str:
+        return f"fault {transmitter} {fault.name} {value:g}"
+
+    def loop_mode(self, loop: str, mode: LoopMode, mv_percent: float | None) -> str:
+        pct = f" {mv_percent:g} %" if mv_percent is not None else ""
+        return f"loop {loop} {mode.name.lower()}{pct}"
+
+    def supervisor_mode(self, mode: SupervisorMode) -> str:
+        return f"supervisor mode {mode.name}"
+
+
 def _describe_event(ev: Event) -> str:
-    if isinstance(ev, SetpointEvent):
-        return f"setpoint {ev.loop} {ev.value_m:g} m"
-    if isinstance(ev, LeakEvent):
-        return f"leak {ev.tank} {ev.opening:g}"
-    if isinstance(ev, ValveEvent):
-        return f"valve {ev.valve} {ev.opening:g}"
-    if isinstance(ev, FaultEvent):
-        return f"fault {ev.transmitter} {ev.fault} {ev.value:g}"
-    if isinstance(ev, DisturbanceEvent):
-        return f"disturbance {ev.tank} {ev.flow_m3_s:g} m^3/s"
-    if isinstance(ev, LoopModeEvent):
-        pct = f" {ev.mv_percent:g} %" if ev.mv_percent is not None else ""
-        return f"loop {ev.loop} {ev.mode.lower()}{pct}"
-    return f"supervisor mode {ev.mode}"
+    return apply_event(_Described(), ev)
 
 
 class LiveEvents:
