@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Annotated, Any
 
 import typer
@@ -13,7 +13,9 @@ from tankctl.ops.display import with_unit
 from tankctl.ops.errors import UsageError
 from tankctl.ops.options import StackOptions, stack_command
 from tankctl.ops.run import check_usage, run
+from tankctl.ops.stack import Stack
 from tanklab.enums import LoopMode, SupervisorMode
+from tanklab.tags import Tier
 
 
 async def write_and_tell(client: TierClient, path: str, value: Any, note: str = "") -> str:
@@ -25,6 +27,20 @@ async def write_and_tell(client: TierClient, path: str, value: Any, note: str = 
     return f"{path} = {with_unit(tag, value)}{extra}"
 
 
+def _write_one(stack: Stack, tier: Tier, path: Callable[[], str], value: Any) -> None:
+    """Run a one-node write: know the site, check the name (``path()`` raises UsageError for an
+    unknown one), write the node of ``tier`` and print ``PATH = NEW (was OLD)``."""
+
+    async def main() -> int:
+        await stack.resolve(tier)
+        node = path()
+        async with stack.client(tier) as client:
+            typer.echo(await write_and_tell(client, node, value))
+        return 0
+
+    run(main)
+
+
 @stack_command
 def setpoint(
     loop: Annotated[str, typer.Argument(help="Loop, e.g. LIC1.")],
@@ -34,15 +50,7 @@ def setpoint(
 ) -> None:
     """Write a loop's setpoint, in m, to the PLC (PLC.LIC{j}.SP; the PLC range-checks it)."""
     stack = options.stack()
-
-    async def main() -> int:
-        await stack.resolve("plc")
-        name = stack.loop(loop)
-        async with stack.client("plc") as plc:
-            typer.echo(await write_and_tell(plc, f"PLC.{name}.SP", value))
-        return 0
-
-    run(main)
+    _write_one(stack, "plc", lambda: f"PLC.{stack.loop(loop)}.SP", value)
 
 
 def _opening(text: str, what: str, words: Mapping[str, float]) -> float:
@@ -70,15 +78,7 @@ def leak(
     """Open a tank's leak valve to the drain (Plant.T{i}.Leak, 0..1); 'off' closes it."""
     stack = options.stack()
     value = check_usage(lambda: _opening(opening, "the leak opening", {"off": 0.0}))
-
-    async def main() -> int:
-        await stack.resolve("plant")
-        name = stack.tank(tank)
-        async with stack.client("plant") as plant:
-            typer.echo(await write_and_tell(plant, f"Plant.{name}.Leak", value))
-        return 0
-
-    run(main)
+    _write_one(stack, "plant", lambda: f"Plant.{stack.tank(tank)}.Leak", value)
 
 
 @stack_command
@@ -93,15 +93,7 @@ def valve(
     """Set a connecting or outlet valve's opening (Plant.V{mn}.Opening, 0..1): a clog."""
     stack = options.stack()
     value = check_usage(lambda: _opening(opening, "the valve opening", {"open": 1.0, "closed": 0.0}))
-
-    async def main() -> int:
-        await stack.resolve("plant")
-        vname = stack.valve(name)
-        async with stack.client("plant") as plant:
-            typer.echo(await write_and_tell(plant, f"Plant.{vname}.Opening", value))
-        return 0
-
-    run(main)
+    _write_one(stack, "plant", lambda: f"Plant.{stack.valve(name)}.Opening", value)
 
 
 def _loop_mode(text: str) -> LoopMode:
@@ -184,11 +176,8 @@ def mode(
     stack = options.stack()
     new = check_usage(lambda: _supervisor_mode(name))
 
-    async def main() -> int:
-        await stack.resolve("supervisor")
+    def path() -> str:
         stack.require("supervisor")
-        async with stack.client("supervisor") as sup:
-            typer.echo(await write_and_tell(sup, "Supervisor.Mode", int(new)))
-        return 0
+        return "Supervisor.Mode"
 
-    run(main)
+    _write_one(stack, "supervisor", path, int(new))
