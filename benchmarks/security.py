@@ -101,7 +101,7 @@ from tanklab.enums import LoopMode
 from tanklab.home import SecurityHome
 from tanklab.home import provision as provision_home
 from tanklab.tags import DataType, Role, Tag, plc_tags
-from tanklab.ua import namespace_index, new_client
+from tanklab.ua import namespace_index, new_client, quiet_disconnect
 from tanklab.ua_security import LIMITS, ClientIdentity, secure_client
 from tanklab.users import Credentials, load_credentials
 
@@ -1578,7 +1578,7 @@ class Probe:
                 await asyncio.wait_for(client.connect(), 4.0)
                 idx = await namespace_index(client)
             except Exception:
-                await _quiet_disconnect(client)
+                await quiet_disconnect(client, 2.0)
                 return None
             self.client = client
             self.nodes = [client.get_node(ua.NodeId(p, idx)) for p in self.paths]
@@ -1597,12 +1597,7 @@ class Probe:
     async def close(self) -> None:
         client, self.client = self.client, None
         if client is not None:
-            await _quiet_disconnect(client)
-
-
-async def _quiet_disconnect(client: Client) -> None:
-    with contextlib.suppress(Exception):
-        await asyncio.wait_for(client.disconnect(), 2.0)
+            await quiet_disconnect(client, 2.0)
 
 
 async def _until(cond: Callable[[], Awaitable[bool]], limit_s: float, poll_s: float = 0.05) -> float:
@@ -1773,7 +1768,7 @@ async def login_storm_async(n: int = 48, concurrency: int = 8) -> dict[str, Any]
             await secure_client(client, who)
             with contextlib.suppress(Exception):
                 await client.connect()
-            await _quiet_disconnect(client)
+            await quiet_disconnect(client, 2.0)
 
         before = await status_after_scans(watcher, 2)
         started = time.perf_counter()

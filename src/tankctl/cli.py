@@ -474,7 +474,7 @@ def up(
     engineer account whose random password goes to the home's 0600 credentials file, which the
     operator commands read by default. Piped output (or --no-board) gives one line per event.
     SIGINT/SIGTERM stop every tier within 10 s, at any moment, and ``up`` says what was saved."""
-    from tankctl.up import PreflightError, Stack, StopSignals, run_stack, run_up
+    from tankctl.up import LocalStack, PreflightError, StopSignals, run_stack, run_up
     from tanklab.home import SecurityHome, default_home
 
     # From here on a signal stops `up` through its one stop path, never halfway through a step.
@@ -489,7 +489,7 @@ def up(
     if not 1 <= base_port <= 65533:
         raise fail(f"--base-port must be 1..65533, got {base_port}")
     spd = resolve_speed(speed)
-    stack = Stack(
+    stack = LocalStack(
         site,
         path,
         base_port,

@@ -26,7 +26,7 @@ from plc_emulator.writes import apply_write
 from supervisor.cycle import PlcSnapshot, SupervisorCore
 from supervisor.port import PlcRequest, SupervisorDriver
 from tanklab.config import PidGainsSpec, SiteConfig
-from tanklab.enums import LoopMode, SupervisorMode
+from tanklab.enums import LoopMode, SensorFault, SupervisorMode
 
 FloatArray = NDArray[np.float64]
 
@@ -121,6 +121,42 @@ class ProgramPort:
                 applied = False
             if not applied:
                 self.refused_writes += 1
+
+
+class CoSimEvents:
+    """The scenario verbs (:class:`tankctl.events.EventTarget`) on a co-simulation, between
+    scans, as the operator's OPC UA client writes them to the processes (same order, same
+    conversions: a manual output in percent of the loop's MV range)."""
+
+    def __init__(self, cs: CoSimulation) -> None:
+        self.cs = cs
+
+    def setpoint(self, loop: str, value_m: float) -> None:
+        self.cs.plc.set_sp(loop, value_m)
+
+    def leak(self, tank: str, opening: float) -> None:
+        self.cs.plant.set_leak(tank, opening)
+
+    def valve(self, valve: str, opening: float) -> None:
+        self.cs.plant.set_valve(valve, opening)
+
+    def disturbance(self, tank: str, flow_m3_s: float) -> None:
+        self.cs.plant.set_disturbance(tank, flow_m3_s)
+
+    def fault(self, transmitter: str, fault: SensorFault, value: float) -> None:
+        self.cs.plant.set_fault(transmitter, fault, value)
+
+    def loop_mode(self, loop: str, mode: LoopMode, mv_percent: float | None) -> None:
+        # Mode first, then the output (the MANUAL switch is bumpless and starts from the MV).
+        self.cs.plc.set_mode(loop, mode)
+        if mv_percent is not None:
+            lp = self.cs.plc.loop(loop)
+            self.cs.plc.set_manual_mv(loop, lp.mv_min + mv_percent / 100.0 * (lp.mv_max - lp.mv_min))
+
+    def supervisor_mode(self, mode: SupervisorMode) -> None:
+        if self.cs.supervisor is None:
+            raise ValueError("the site has no supervisor")
+        self.cs.supervisor.request_mode(mode)
 
 
 class CoSimulation:

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from tankctl.simulate import ScenarioResult, StepResult
+from tankctl.simulate.results import ScenarioResult, StepResult
 
 __all__ = ["energies_notes", "kortela_notes", "ratio_notes"]
 

@@ -34,26 +34,37 @@ import errno
 import os
 import signal
 import socket
-import sys
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-from rich.console import Console, Group
+from rich.console import Console
 from rich.live import Live
-from rich.table import Table
-from rich.text import Text
 
+from tankctl.up_board import Board
+from tankctl.up_process import Tier, last_error_line, running_pid
 from tanklab.config import SiteConfig
-from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
 from tanklab.errors import TanklabError
 from tanklab.home import SecurityHome, default_home, provision
 from tanklab.pki import IDENTITIES
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
 from tanklab.ua import Link
 from tanklab.ua_security import ClientIdentity, cli_identity, client_setup
+
+__all__ = [
+    "LocalStack",
+    "PreflightError",
+    "StartError",
+    "StopReport",
+    "StopSignals",
+    "Tier",
+    "last_error_line",
+    "run_stack",
+    "run_up",
+    "running_pid",
+]
 
 TIERS = ("plant", "plc", "supervisor")
 READY_TIMEOUT_S = 60.0
@@ -75,152 +86,6 @@ class StartError(Exception):
     """A tier died or did not answer during start-up (one line, with the reason from its log)."""
 
 
-def pid_alive(pid: int) -> bool:
-    """True when a process ``pid`` exists (``kill(pid, 0)``)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def running_pid(path: Path) -> int | None:
-    """The pid in the pid file ``path`` when it names a live tanklab process, else None.
-
-    None for a missing or unreadable file, a pid that is gone, and (where ``/proc`` exists) a
-    pid now used by a process that is not ``tankctl``: such a file is stale.
-    """
-    try:
-        pid = int(path.read_text(encoding="utf-8").split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
-    if pid <= 0 or not pid_alive(pid):
-        return None
-    if not Path("/proc/self").exists():
-        return pid
-    try:
-        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-    except FileNotFoundError:
-        return None
-    except OSError:
-        return pid
-    return pid if any(b"tankctl" in a for a in argv) else None
-
-
-def last_error_line(text: str, limit: int = 300) -> str:
-    """The line of a tier's log that says why it stopped.
-
-    The tier's own one-line error (``tankctl: ...``) if there is one, else the last line naming
-    an error or exception (a traceback's last line), else the last line.
-    """
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
-    if not lines:
-        return "nothing in its log"
-    pick = next((ln for ln in reversed(lines) if ln.startswith("tankctl:")), None)
-    if pick is None:
-        keys = ("ERROR", "CRITICAL", "Error", "Exception")
-        pick = next((ln for ln in reversed(lines) if any(k in ln for k in keys)), lines[-1])
-    return pick if len(pick) <= limit else pick[: limit - 3] + "..."
-
-
-@dataclass
-class Tier:
-    """One child process of the stack."""
-
-    name: str
-    args: list[str]
-    url: str
-    port: int
-    log_path: Path
-    proc: asyncio.subprocess.Process | None = None
-    restarts: int = 0
-    exit_code: int | None = None
-    log_file: Any = None
-    log_offset: int = 0
-    killed: bool = False
-    exited_at: float | None = None
-
-    async def start(self, env: dict[str, str]) -> None:
-        self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        if self.log_file is None:
-            self.log_file = self.log_path.open("ab")
-        # The reason of a death is looked for in what this run wrote, not in older runs.
-        self.log_offset = self.log_path.stat().st_size
-        self.proc = await asyncio.create_subprocess_exec(
-            sys.executable,
-            "-m",
-            "tankctl",
-            *self.args,
-            stdout=asyncio.subprocess.DEVNULL,
-            stderr=self.log_file,
-            env=env,
-            # Its own process group: Ctrl-C on the terminal reaches ``up`` only, which stops
-            # the tiers in its order, and SIGKILL can take the tier's whole group.
-            start_new_session=True,
-        )
-        self.exit_code = None
-        self.killed = False
-        self.exited_at = None
-        # The pid file lets an operator (or a test) signal exactly this tier.
-        self.pid_path.write_text(f"{self.proc.pid}\n", encoding="utf-8")
-
-    @property
-    def pid_path(self) -> Path:
-        """``<log dir>/<tier>.pid`` while the tier runs."""
-        return self.log_path.with_suffix(".pid")
-
-    @property
-    def running(self) -> bool:
-        return self.proc is not None and self.proc.returncode is None
-
-    def signal(self, sig: signal.Signals) -> None:
-        """Send ``sig`` to the tier's process group (it leads its own session)."""
-        if self.proc is None or self.proc.returncode is not None:
-            return
-        if sig == signal.SIGKILL:
-            self.killed = True
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(self.proc.pid, sig)
-
-    async def wait(self, timeout_s: float) -> bool:
-        """Wait at most ``timeout_s`` for the process to exit; True when it has."""
-        if self.proc is None:
-            return True
-        try:
-            await asyncio.wait_for(asyncio.shield(self.proc.wait()), max(0.0, timeout_s))
-        except TimeoutError:
-            return False
-        self.exit_code = self.proc.returncode
-        if self.exited_at is None:
-            self.exited_at = time.monotonic()
-        return True
-
-    def reason(self) -> str:
-        """Why the tier stopped: the signal that killed it, else the last error line its log got
-        since it was started."""
-        if self.exit_code is not None and self.exit_code < 0:
-            with contextlib.suppress(ValueError):
-                return f"killed by {signal.Signals(-self.exit_code).name}"
-        try:
-            with self.log_path.open("rb") as f:
-                f.seek(self.log_offset)
-                data = f.read()
-        except OSError as e:
-            return f"its log {self.log_path} is unreadable: {e.strerror or e}"
-        return last_error_line(data[-65536:].decode("utf-8", "replace"))
-
-    def release(self) -> None:
-        """After the process is gone: close the log, remove the pid file if it still is ours."""
-        if self.log_file is not None:
-            self.log_file.close()
-            self.log_file = None
-        if self.proc is not None and running_pid(self.pid_path) in (None, self.proc.pid):
-            with contextlib.suppress(FileNotFoundError):
-                self.pid_path.unlink()
-
-
 @dataclass
 class StopReport:
     """What a stop did: which tiers needed SIGKILL, how long it took, what was saved."""
@@ -233,8 +98,13 @@ class StopReport:
 
 
 @dataclass
-class Stack:
-    """The tiers of a site, their files and their lifecycle."""
+class LocalStack:
+    """The tiers of a site that ``tankctl up`` runs on this machine as child processes: their
+    command lines, files and lifecycle.
+
+    Not :class:`tankctl.ops.Stack`, which is what an operator command connects to (endpoints,
+    the site, one client per tier), wherever the tiers run (decision 0031).
+    """
 
     site: SiteConfig
     config_path: Path
@@ -602,155 +472,8 @@ class Stack:
                 self.pid_path.unlink()
 
 
-class Board:
-    """Live view of the running stack: one Read per tier per refresh."""
-
-    def __init__(self, stack: Stack) -> None:
-        self.stack = stack
-        site = stack.site
-        self.tanks = site.tank_names
-        self.pumps = site.pump_names
-        self.loops = site.loop_names
-        pt, ct = tags_by_path(plant_tags(site)), tags_by_path(plc_tags(site))
-        self.plant_paths = [f"Plant.{t}.Level" for t in self.tanks] + [f"Plant.{p}.Flow" for p in self.pumps]
-        self.plant_paths += [f"Plant.{t}.Leak" for t in self.tanks] + [
-            "Plant.Sim.Time",
-            "Plant.Balance.Spilled",
-        ]
-        items = ("SP", "PV", "MV", "Mode", "Kp", "Ki", "Kd", "GainSource")
-        self.plc_paths = [f"PLC.{lp}.{i}" for lp in self.loops for i in items]
-        self.plc_paths += [
-            "PLC.Status.Scan",
-            "PLC.Status.IoHealthy",
-            "PLC.Supervisor.Alive",
-            "PLC.Status.Overruns",
-        ]
-        self.plc_paths += [
-            p for p in ct if p.startswith(("PLC.Alarms.", "PLC.Interlock.")) and ct[p].kind == "variable"
-        ]
-        self.links = {
-            "plant": stack.link("plant", {p: pt[p] for p in self.plant_paths}, "board-plant"),
-            "plc": stack.link("plc", {p: ct[p] for p in self.plc_paths}, "board-plc"),
-        }
-        if "supervisor" in stack.tiers:
-            st = tags_by_path(supervisor_tags(site))
-            self.sup_paths = [
-                "Supervisor.Mode",
-                "Supervisor.MPC.Status",
-                "Supervisor.MPC.SolveTime",
-                "Supervisor.Cycle",
-                "Supervisor.PlcConnected",
-            ]
-            self.links["supervisor"] = stack.link(
-                "supervisor", {p: st[p] for p in self.sup_paths}, "board-supervisor"
-            )
-        self.values: dict[str, Any] = {}
-        self.reachable: dict[str, bool] = {}
-
-    async def refresh(self) -> None:
-        paths = {"plant": self.plant_paths, "plc": self.plc_paths}
-        if "supervisor" in self.links:
-            paths["supervisor"] = self.sup_paths
-        for tier, link in self.links.items():
-            ok = False
-            if await link.ensure():
-                with contextlib.suppress(Exception):
-                    dvs = await link.read(paths[tier])
-                    self.values.update({p: dv.Value.Value for p, dv in zip(paths[tier], dvs, strict=True)})
-                    ok = True
-            self.reachable[tier] = ok
-
-    def render(self, dead: list[Tier]) -> Group:
-        v = self.values
-        site = self.stack.site
-        title = f"tanklab · {site.name} · {self.stack.clock} · speed {self.stack.speed:g}"
-        if "Plant.Sim.Time" in v:
-            title += f" · t = {v['Plant.Sim.Time']:.0f} s"
-        levels = Table(title=title, expand=True)
-        for col in ("tank", "level [m]", "setpoint [m]", "leak"):
-            levels.add_column(col)
-        sp_of = {f"T{lp.pv[2:]}": f"PLC.{lp.name}.SP" for lp in site.plc.loops} if site.plc else {}
-        for t in self.tanks:
-            level = v.get(f"Plant.{t}.Level")
-            sp = v.get(sp_of[t]) if t in sp_of else None
-            bar = _bar(level, site.plant.tank(t).height_max_m)
-            levels.add_row(t, f"{_f(level, 4)} {bar}", _f(sp, 3), _f(v.get(f"Plant.{t}.Leak"), 2))
-        loops = Table(expand=True)
-        for col in ("loop", "mode", "PV [m]", "MV", "flow [m^3/s]", "Kp", "Ki", "Kd", "gains from"):
-            loops.add_column(col)
-        for lp in site.plc.loops if site.plc else []:
-            p = f"PLC.{lp.name}"
-            mode = v.get(f"{p}.Mode")
-            src = v.get(f"{p}.GainSource")
-            pump = site.plant.pump(lp.actuator)
-            loops.add_row(
-                lp.name,
-                LoopMode(mode).name if mode is not None else "?",
-                _f(v.get(f"{p}.PV"), 4),
-                f"{_g(v.get(f'{p}.MV'))} {pump.unit}",
-                _f(v.get(f"Plant.{lp.actuator}.Flow"), 3, sci=True),
-                _f(v.get(f"{p}.Kp"), 3, sci=True),
-                _f(v.get(f"{p}.Ki"), 3, sci=True),
-                _f(v.get(f"{p}.Kd"), 3, sci=True),
-                GainSource(src).name if src is not None else "?",
-            )
-        status = Text()
-        mode = v.get("Supervisor.Mode")
-        if mode is not None:
-            ms = v.get("Supervisor.MPC.Status")
-            status.append(
-                f"supervisor {SupervisorMode(mode).name}, MPC {MpcStatus(ms).name if ms is not None else '?'}"
-            )
-            solve = v.get("Supervisor.MPC.SolveTime")
-            if solve is not None:
-                status.append(f" ({1e3 * solve:.2f} ms)")
-        io = "ok" if v.get("PLC.Status.IoHealthy") else "LOST"
-        status.append(f" · PLC scan {v.get('PLC.Status.Scan', '?')}, IO {io}")
-        status.append(f", supervisor {'alive' if v.get('PLC.Supervisor.Alive') else 'not alive'}")
-        alarms = [
-            p.split(".", 2)[2]
-            for p in self.plc_paths
-            if p.startswith(("PLC.Alarms.", "PLC.Interlock.")) and v.get(p)
-        ]
-        alarm_text = Text(
-            "alarms: " + (", ".join(alarms) if alarms else "none"), style="bold red" if alarms else "green"
-        )
-        lines: list[Any] = [levels, loops, status, alarm_text]
-        for name, ok in self.reachable.items():
-            if not ok:
-                lines.append(Text(f"{name} unreachable at {self.stack.tiers[name].url}", style="bold red"))
-        for tier in dead:
-            lines.append(
-                Text(f"{tier.name} DIED (exit {tier.exit_code}); see {tier.log_path}", style="bold red")
-            )
-        logs = ", ".join(str(t.log_path) for t in self.stack.tiers.values())
-        lines.append(Text(f"logs: {logs} · Ctrl-C stops the stack", style="dim"))
-        return Group(*lines)
-
-    async def close(self) -> None:
-        for link in self.links.values():
-            await link.close()
-
-
-def _f(value: Any, digits: int, *, sci: bool = False) -> str:
-    if value is None:
-        return "-"
-    return f"{value:.{digits}e}" if sci else f"{value:.{digits}f}"
-
-
-def _g(value: Any) -> str:
-    return "-" if value is None else f"{value:.4g}"
-
-
-def _bar(level: float | None, hmax: float, width: int = 20) -> str:
-    if level is None:
-        return ""
-    filled = max(0, min(width, round(width * level / hmax)))
-    return "█" * filled + "·" * (width - filled)
-
-
 async def run_stack(
-    stack: Stack,
+    stack: LocalStack,
     *,
     board: bool,
     stop: asyncio.Event,
@@ -762,7 +485,7 @@ async def run_stack(
     """Start the stack, run until ``stop`` or a tier's death, stop it; return the exit code.
 
     Every way out (stop, death, start-up failure, exception, cancellation) goes through
-    :meth:`Stack.stop`. ``board``: the live board (a terminal only); else one line per event.
+    :meth:`LocalStack.stop`. ``board``: the live board (a terminal only); else one line per event.
     ``cause()`` names why ``stop`` was set (the signal).
     """
     console = console or Console(soft_wrap=True, highlight=False)

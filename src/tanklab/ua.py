@@ -613,6 +613,17 @@ def describe_error(e: BaseException) -> str:
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
+class ConnectError(LinkError):
+    """A connection attempt that failed, at ``stage`` (``setup``: the secure channel and identity;
+    ``connect``: the session; ``namespace``: looking ``urn:tanklab`` up), because of ``cause``
+    (also the exception's ``__cause__``)."""
+
+    def __init__(self, name: str, url: str, stage: str, cause: BaseException) -> None:
+        super().__init__(f"{name} link to {url}: {stage} failed: {describe_error(cause)}")
+        self.stage = stage
+        self.cause = cause
+
+
 class Link:
     """An OPC UA client link to the tier below that never crashes its owner.
 
@@ -633,6 +644,10 @@ class Link:
     up`` waiting for a tier it is starting, its board) out of an unconfigured terminal, where
     Python prints warnings by itself.
 
+    The operator commands' client (:class:`tankctl.ops.client.TierClient`) is this link too: it
+    calls :meth:`connect` (one attempt now, raising :class:`ConnectError`) instead of
+    :meth:`ensure`, and maps the failures to its one-line messages.
+
     Diagnostics (:meth:`status`, published by the tiers on ``<prefix>.Attempts`` etc., see
     :func:`tanklab.tags.link_status_paths`): ``attempts`` failed connection attempts since the
     link was last up (consecutive failures; 0 while up), ``connects`` successful connections,
@@ -652,8 +667,11 @@ class Link:
         rng: random.Random | None = None,
         backoff: Callable[[int, random.Random], float] = backoff_delay,
         failure_level: int = logging.INFO,
+        client_name: str | None = None,
     ) -> None:
         self.url = url
+        self.client_name = client_name
+        """The client's application name shown to the server (None: asyncua's default)."""
         self.setup = setup
         self.tags = tags
         self.name = name
@@ -691,11 +709,27 @@ class Link:
             return True
         if self.clock.now() < self._next_attempt:
             return False
+        try:
+            await self.connect()
+        except ConnectError:
+            return False
+        return True
+
+    async def connect(self) -> None:
+        """One connection attempt now, due or not (a no-op while up); a failure is counted and
+        logged as by :meth:`ensure` and raised as :class:`ConnectError` naming its stage."""
+        if self.healthy:
+            return
         client = new_client(self.url, self.timeout_s)
         client.session_timeout = SESSION_TIMEOUT_MS
+        if self.client_name is not None:
+            client.name = self.client_name
+        stage = "setup"
         try:
             await asyncio.wait_for(self.setup(client), self.timeout_s)
+            stage = "connect"
             await asyncio.wait_for(client.connect(), self.timeout_s)
+            stage = "namespace"
             self.idx = await asyncio.wait_for(namespace_index(client), self.timeout_s)
         except Exception as e:
             # asyncua unwinds a failed connect itself; what a timeout cut short is the socket.
@@ -703,7 +737,7 @@ class Link:
             with contextlib.suppress(Exception):
                 client.disconnect_socket()
             self._attempt_failed(e)
-            return False
+            raise ConnectError(self.name, self.url, stage, e) from e
         self.client = client
         self.nodes = {p: client.get_node(ua.NodeId(p, self.idx)) for p in self.tags}
         self.healthy = True
@@ -712,7 +746,16 @@ class Link:
         self.attempts = 0
         self.retry_delay_s = 0.0
         log.info("%s link: connected to %s%s", self.name, self.url, after)
-        return True
+
+    def node(self, path: str) -> Node:
+        """The node of a tag path (string NodeId in ``urn:tanklab``), made once per connection:
+        the link's own tags are made at connect, any other path on first use."""
+        node = self.nodes.get(path)
+        if node is None:
+            if self.client is None or self.idx is None:
+                raise LinkError(f"{self.name} link to {self.url} is down")
+            node = self.nodes[path] = self.client.get_node(ua.NodeId(path, self.idx))
+        return node
 
     def _attempt_failed(self, e: BaseException) -> None:
         self.attempts += 1
@@ -745,7 +788,7 @@ class Link:
         self.healthy = False
         client, self.client = self.client, None
         if client is not None:
-            await _quiet_disconnect(client)
+            await quiet_disconnect(client)
         # The first reconnection attempt is due at once: most losses are one timed-out request.
         self._next_attempt = -math.inf
         return LinkError(f"{self.name} link to {self.url}: {what} failed: {reason}")
@@ -757,21 +800,25 @@ class Link:
         try:
             # asyncio.timeout, not wait_for: no extra task per request (a few us, every scan).
             async with asyncio.timeout(self.timeout_s):
-                return list(await self.client.read_attributes([self.nodes[p] for p in paths]))
+                return list(await self.client.read_attributes([self.node(p) for p in paths]))
         except Exception as e:
             raise await self._fail("read", e) from e
 
-    async def write(self, values: dict[str, Any]) -> list[ua.StatusCode]:
-        """Write many values in one Write; returns each item's status (no exception for Bad)."""
+    async def write(
+        self, values: Mapping[str, Any], tags: Mapping[str, Tag] | None = None
+    ) -> list[ua.StatusCode]:
+        """Write many values in one Write, each with its tag's exact type (``tags``, default the
+        link's own); returns each item's status (no exception for Bad)."""
         if not self.healthy or self.client is None:
             raise LinkError(f"{self.name} link to {self.url} is down")
         paths = list(values)
-        dvs = [ua.DataValue(variant(self.tags[p], values[p])) for p in paths]
+        types = self.tags if tags is None else tags
+        dvs = [ua.DataValue(variant(types[p], values[p])) for p in paths]
         try:
             async with asyncio.timeout(self.timeout_s):
                 return list(
                     await self.client.uaclient.write_attributes(
-                        [self.nodes[p].nodeid for p in paths], dvs, ua.AttributeIds.Value
+                        [self.node(p).nodeid for p in paths], dvs, ua.AttributeIds.Value
                     )
                 )
         except Exception as e:
@@ -797,10 +844,11 @@ class Link:
         self.healthy = False
         client, self.client = self.client, None
         if client is not None:
-            await _quiet_disconnect(client)
+            await quiet_disconnect(client)
 
 
-async def _quiet_disconnect(client: Client) -> None:
-    # The peer may already be gone: nothing to report about a failed goodbye.
+async def quiet_disconnect(client: Client, timeout_s: float = 1.0) -> None:
+    """Disconnect ``client``, waiting at most ``timeout_s`` [s], never raising: the peer may
+    already be gone, and a failed goodbye has nothing to tell anyone."""
     with contextlib.suppress(Exception):
-        await asyncio.wait_for(client.disconnect(), 1.0)
+        await asyncio.wait_for(client.disconnect(), timeout_s)

@@ -1,0 +1,281 @@
+"""``tankctl status``: one Read per tier, shaped into the status document and its tables."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Any
+
+import typer
+from rich.console import Group
+from rich.table import Table
+from rich.text import Text
+
+from tankctl.ops.display import num, percent_of, plain, sci, secs, show, stdout_console
+from tankctl.ops.errors import UnreachableError
+from tankctl.ops.options import JsonOpt, StackOptions, stack_command
+from tankctl.ops.run import run
+from tankctl.ops.stack import TIERS, Stack
+from tanklab.tags import Tier
+
+
+async def _read_tier(stack: Stack, tier: Tier) -> dict[str, Any] | UnreachableError:
+    """Every contract variable of a tier in one Read, or why the tier did not answer."""
+    client = stack.client(tier)
+    paths = [t.path for t in client.tags.values() if t.kind == "variable"]
+    try:
+        async with client:
+            return await client.read(paths)
+    except UnreachableError as e:
+        return e
+
+
+def _plant_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
+    site = stack.site
+    tags = stack.tags("plant")
+    tanks = {}
+    for t in site.tank_names:
+        i = t[1:]
+        tanks[t] = {
+            "level_m": plain(v[f"Plant.{t}.Level"]),
+            "lt_pv_m": plain(v[f"Plant.LT{i}.PV"]),
+            "lt_fault": show(tags[f"Plant.LT{i}.Fault"], v[f"Plant.LT{i}.Fault"]),
+            "lt_fault_value": plain(v[f"Plant.LT{i}.FaultValue"]),
+            "leak": plain(v[f"Plant.{t}.Leak"]),
+            "disturbance_m3_s": plain(v[f"Plant.{t}.Disturbance"]),
+            "lsh": v[f"Plant.{t}.LSH"],
+            "lsl": v[f"Plant.{t}.LSL"],
+        }
+    return {
+        "model_time_s": plain(v["Plant.Sim.Time"]),
+        "speed": plain(v["Plant.Sim.Speed"]),
+        "watchdog": v["Plant.Sim.Watchdog"],
+        "tanks": tanks,
+        "valves": {n: {"opening": plain(v[f"Plant.{n}.Opening"])} for n in site.valve_names},
+        "pumps": {
+            p.name: {
+                "command": plain(v[f"Plant.{p.name}.Command"]),
+                "unit": p.unit,
+                "flow_m3_s": plain(v[f"Plant.{p.name}.Flow"]),
+            }
+            for p in site.plant.pumps
+        },
+        "balance_error_m3": plain(v["Plant.Balance.Error"]),
+    }
+
+
+def _plc_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
+    site = stack.site
+    tags = stack.tags("plc")
+    loops = {}
+    for name in site.loop_names:
+        p = f"PLC.{name}"
+        mv_tag = tags[f"{p}.MV"]
+        loops[name] = {
+            "block": v[f"{p}.Block"],
+            "mode": show(tags[f"{p}.Mode"], v[f"{p}.Mode"]),
+            "sp_m": plain(v[f"{p}.SP"]),
+            "pv_m": plain(v[f"{p}.PV"]),
+            "mv": plain(v[f"{p}.MV"]),
+            "mv_unit": mv_tag.unit,
+            "mv_percent": plain(percent_of(v[f"{p}.MV"], mv_tag.eu_range)),
+            "manual_mv": plain(v[f"{p}.ManualMV"]),
+            "kp": plain(v[f"{p}.Kp"]),
+            "ki": plain(v[f"{p}.Ki"]),
+            "kd": plain(v[f"{p}.Kd"]),
+            "gain_source": show(tags[f"{p}.GainSource"], v[f"{p}.GainSource"]),
+        }
+    variables = [path for path, tag in tags.items() if tag.kind == "variable"]
+    alarms = {path.split(".", 2)[2]: v[path] for path in variables if path.startswith("PLC.Alarms.")}
+    interlocks = {path.split(".", 2)[2]: v[path] for path in variables if path.startswith("PLC.Interlock.")}
+    return {
+        "scan": v["PLC.Status.Scan"],
+        "model_time_s": plain(v["PLC.Status.ModelTime"]),
+        "io_healthy": v["PLC.Status.IoHealthy"],
+        "overruns": v["PLC.Status.Overruns"],
+        "last_scan_duration_s": plain(v["PLC.Status.LastScanDuration"]),
+        "supervisor_alive": v["PLC.Supervisor.Alive"],
+        "loops": loops,
+        "io": {
+            f"LT{t[1:]}": {"pv_m": plain(v[f"PLC.IO.LT{t[1:]}.PV"]), "good": v[f"PLC.IO.LT{t[1:]}.Good"]}
+            for t in site.tank_names
+        },
+        "alarms": alarms,
+        "active_alarms": [k for k, on in alarms.items() if on],
+        "interlocks": interlocks,
+        "tripped": [k for k, on in interlocks.items() if on],
+    }
+
+
+def _supervisor_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
+    tags = stack.tags("supervisor")
+    return {
+        "mode": show(tags["Supervisor.Mode"], v["Supervisor.Mode"]),
+        "cycle": v["Supervisor.Cycle"],
+        "plc_connected": v["Supervisor.PlcConnected"],
+        "mpc": {
+            "status": show(tags["Supervisor.MPC.Status"], v["Supervisor.MPC.Status"]),
+            "solve_time_s": plain(v["Supervisor.MPC.SolveTime"]),
+            "iterations": v["Supervisor.MPC.Iterations"],
+            "failures": v["Supervisor.MPC.Failures"],
+            "horizon": v["Supervisor.MPC.Horizon"],
+        },
+    }
+
+
+async def collect_status(stack: Stack) -> dict[str, Any]:
+    """The status document (``status --json``): one Read per tier, the tiers concurrently."""
+    tiers = [t for t in TIERS if stack.has(t)]
+    results = await asyncio.gather(*(_read_tier(stack, t) for t in tiers))
+    shape = {"plant": _plant_json, "plc": _plc_json, "supervisor": _supervisor_json}
+    doc: dict[str, Any] = {
+        "site": stack.site.name,
+        "config_digest": stack.site_identity.digest,
+        "plant": None,
+        "plc": None,
+        "supervisor": None,
+    }
+    for tier, res in zip(tiers, results, strict=True):
+        if isinstance(res, UnreachableError):
+            doc[tier] = {"reachable": False, "url": stack.urls[tier], "error": res.reason}
+        else:
+            doc[tier] = {"reachable": True, "url": stack.urls[tier], **shape[tier](stack, res)}
+    return doc
+
+
+def _tier_state(tier: str, d: dict[str, Any]) -> str:
+    if not d["reachable"]:
+        return f"UNREACHABLE: {d['error']}"
+    if tier == "plant":
+        text = f"model time {secs(d['model_time_s'])} s, speed {num(d['speed'])}"
+        return text + (", pump watchdog TRIPPED" if d["watchdog"] else "")
+    if tier == "plc":
+        io = "IO healthy" if d["io_healthy"] else "IO FAULT"
+        sup = "supervisor alive" if d["supervisor_alive"] else "no supervisor heartbeat"
+        t = secs(d["model_time_s"])
+        return f"scan {d['scan']}, model time {t} s, {io}, {sup}, overruns {d['overruns']}"
+    mpc = d["mpc"]
+    solve = f" {1e3 * mpc['solve_time_s']:.1f} ms" if isinstance(mpc["solve_time_s"], float) else ""
+    plc = "PLC connected" if d["plc_connected"] else "PLC NOT connected"
+    return f"mode {d['mode']}, cycle {d['cycle']}, MPC {mpc['status']}{solve}, {plc}"
+
+
+def render_status(stack: Stack, doc: dict[str, Any]) -> Group:
+    """The human form of the status document: tiers, tanks, loops, alarms."""
+    site = stack.site
+    shown = [t for t in TIERS if doc[t] is not None]
+    url_width = max(len(doc[t]["url"]) for t in shown)
+    title = Text(f"{site.name}", style="bold") + Text(
+        f"  config {stack.site_identity.short} (from {stack.origin})"
+    )
+    title.no_wrap, title.overflow = True, "ignore"  # one line, however narrow the terminal
+    lines = [title]
+    for tier in shown:
+        d = doc[tier]
+        state = Text(_tier_state(tier, d), style="" if d["reachable"] else "bold red")
+        line = Text(f"{tier:<11}{d['url']:<{url_width}}  ", no_wrap=True, overflow="ignore") + state
+        line.no_wrap, line.overflow = True, "ignore"  # one line per tier, however wide
+        lines.append(line)
+    header = Group(*lines)
+
+    plant = doc["plant"] if doc["plant"] and doc["plant"]["reachable"] else None
+    plc = doc["plc"] if doc["plc"] and doc["plc"]["reachable"] else None
+    loop_of = {"T" + lp.pv[2:]: lp.name for lp in (site.plc.loops if site.plc else [])}
+    tanks = Table(title="tanks", title_justify="left")
+    for col in ("tank", "level [m]", "PLC PV [m]", "SP [m]", "loop", "leak", "LT fault", "switches"):
+        tanks.add_column(col, justify="left" if col in ("tank", "loop", "LT fault", "switches") else "right")
+    for t in site.tank_names:
+        pt = plant["tanks"][t] if plant else {}
+        lt = f"LT{t[1:]}"
+        io = plc["io"][lt] if plc else {}
+        pv = num(io.get("pv_m"), "m") + ("" if io.get("good", True) else " BAD")
+        loop = loop_of.get(t)
+        sp = num(plc["loops"][loop]["sp_m"], "m") if plc and loop else ""
+        switches = ", ".join(k.upper() for k in ("lsh", "lsl") if pt.get(k)) or ("-" if pt else "")
+        fault = pt.get("lt_fault", "-")
+        if fault not in ("NONE", "-"):
+            fault = f"{fault} {pt.get('lt_fault_value', 0):g}"
+        tanks.add_row(
+            t, num(pt.get("level_m"), "m"), pv, sp, loop or "", num(pt.get("leak")), fault, switches
+        )
+
+    parts: list[Any] = [header]
+    if plant is not None or plc is not None:
+        parts += [Text(""), tanks]
+    if plc is not None:
+        loops = Table(title="loops", title_justify="left")
+        for col in ("loop", "block", "mode", "SP [m]", "PV [m]", "MV", "MV %", "Kp", "Ki", "Kd", "gains"):
+            loops.add_column(col, justify="left" if col in ("loop", "block", "mode", "gains") else "right")
+        for name in site.loop_names:
+            d = plc["loops"][name]
+            mv = num(d["mv"]) + (f" {d['mv_unit']}" if d["mv_unit"] not in (None, "1") else "")
+            pct = d["mv_percent"]
+            loops.add_row(
+                name,
+                d["block"] or "-",
+                d["mode"],
+                num(d["sp_m"], "m"),
+                num(d["pv_m"], "m"),
+                mv,
+                f"{pct:.1f}" if isinstance(pct, float) else "-",
+                sci(d["kp"]),
+                sci(d["ki"]),
+                sci(d["kd"]),
+                d["gain_source"],
+            )
+        parts += [Text(""), loops]
+        alarms = ", ".join(plc["active_alarms"]) or "none"
+        trips = ", ".join(plc["tripped"]) or "none"
+        parts.append(Text(f"alarms: {alarms}; interlocks tripped: {trips}"))
+    elif site.plc is not None:
+        parts.append(Text("alarms: unknown (PLC unreachable)"))
+    return Group(*parts)
+
+
+def _print_unresolved(stack: Stack, as_json: bool) -> None:
+    """status when no tier answered and no site was given: each tier and why, no site."""
+    if as_json:
+        doc: dict[str, Any] = {"site": None, "config_digest": None}
+        for tier in TIERS:
+            e = stack.unreached[tier]
+            doc[tier] = {"reachable": False, "url": e.url, "error": e.reason}
+        typer.echo(json.dumps(doc, indent=2))
+        return
+    width = max(len(e.url) for e in stack.unreached.values())
+    typer.echo("site unknown: no tier answered")
+    for tier in TIERS:
+        e = stack.unreached[tier]
+        typer.echo(f"{tier:<11}{e.url:<{width}}  UNREACHABLE: {e.reason}")
+
+
+@stack_command
+def status(
+    as_json: JsonOpt = False,
+    *,
+    options: StackOptions,
+) -> None:
+    """Levels, setpoints, MVs, modes, gains, alarms and health of every tier (one Read each).
+
+    Exit 0 when the PLC answers (the plant, for a site without a PLC), even if another tier is
+    down (shown as unreachable); exit 2, after printing what did answer, when it does not.
+    """
+    stack = options.stack()
+
+    async def main() -> int:
+        try:
+            await stack.resolve("plc", "plant")
+        except UnreachableError as e:
+            _print_unresolved(stack, as_json)
+            raise e from None
+        doc = await collect_status(stack)
+        if as_json:
+            typer.echo(json.dumps(doc, indent=2))
+        else:
+            stdout_console().print(render_status(stack, doc), crop=False)
+        key: Tier = "plc" if stack.has("plc") else "plant"
+        if not doc[key]["reachable"]:
+            typer.echo(f"tankctl: cannot reach {key} at {doc[key]['url']}: {doc[key]['error']}", err=True)
+            return 2
+        return 0
+
+    run(main)
