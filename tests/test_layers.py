@@ -36,7 +36,17 @@ PURE_MODULES = [
     "tanklab/checks.py",
     "supervisor/mpc.py",
     "supervisor/estimator.py",
-    "supervisor/adaptation.py",
+    "supervisor/adaptation/__init__.py",
+    "supervisor/adaptation/_validate.py",
+    "supervisor/adaptation/model.py",
+    "supervisor/adaptation/closed_loop.py",
+    "supervisor/adaptation/config.py",
+    "supervisor/adaptation/decisions.py",
+    "supervisor/adaptation/limits.py",
+    "supervisor/adaptation/guards.py",
+    "supervisor/adaptation/noise.py",
+    "supervisor/adaptation/path.py",
+    "supervisor/adaptation/adapter.py",
     "supervisor/cycle.py",
 ]
 FORBIDDEN = {"asyncua", "asyncio", "time", "socket", "threading", "logging", "datetime", "random", "os"}

@@ -17,6 +17,7 @@ from supervisor.adaptation import (
     LoopModel,
     PidGainAdapter,
     PidGains,
+    gain_path_step,
     model_based_gains,
 )
 from supervisor.prior_rls import PriorRls
@@ -212,16 +213,16 @@ def test_the_estimate_starts_at_the_model_based_tuning_and_is_ready_at_once() ->
 def test_a_push_moves_along_the_straight_line_in_log_space() -> None:
     # Applied Kp 1 -> 4 and Ki 1 -> 2 with a 0.44 rate limit: alpha = ln 1.44 / ln 4, so Kp moves
     # to 4^alpha = 1.44 (at its limit) and Ki to 2^alpha = 1.2; Kd 0 -> 0 stays.
-    ada = PidGainAdapter(MODEL, FIXED, AdaptationConfig(max_change_fraction=0.44))
     applied = np.array([[1.0], [1.0], [0.0]])
     target = np.array([[4.0], [2.0], [0.0]])
     limit = 0.44 * np.abs(applied)
-    step = ada._path_step(applied, target, limit)
+    step = gain_path_step(applied, target, limit, "geometric")
     alpha = math.log(1.44) / math.log(4.0)
     np.testing.assert_allclose(step[:, 0], [1.44, 2.0**alpha, 0.0], rtol=1e-12)
     # The linear path (the former proposer) for comparison: alpha = 0.44 / 3.
-    lin = PidGainAdapter(MODEL, FIXED, AdaptationConfig(max_change_fraction=0.44, path="linear"))
-    np.testing.assert_allclose(lin._path_step(applied, target, limit)[:, 0], [1.44, 1.0 + 0.44 / 3.0, 0.0])
+    np.testing.assert_allclose(
+        gain_path_step(applied, target, limit, "linear")[:, 0], [1.44, 1.0 + 0.44 / 3.0, 0.0]
+    )
 
 
 def test_a_gain_the_box_decides_is_reported_on_the_limit() -> None:
