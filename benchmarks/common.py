@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from tanklab.config import SiteConfig, load_site
-from tanklab.ua import ClientSetup
+from tanklab_io.ua import ClientSetup
 
 ROOT = Path(__file__).resolve().parents[1]
 ENERGIES = ROOT / "configs" / "three_tank_energies_sim.yaml"
@@ -193,7 +193,7 @@ def machine() -> dict[str, str]:
     from threadpoolctl import threadpool_info
 
     pools = [f"{p['internal_api']} {p.get('version') or ''}: {p['num_threads']}" for p in threadpool_info()]
-    info["BLAS threads (tanklab.threads)"] = "; ".join(pools) or "no BLAS loaded"
+    info["BLAS threads (tanklab_io.threads)"] = "; ".join(pools) or "no BLAS loaded"
     return info
 
 
@@ -209,7 +209,7 @@ def bench_home() -> Path:
         import shutil
         import tempfile
 
-        from tanklab.home import SecurityHome, provision
+        from tanklab_io.home import SecurityHome, provision
 
         root = Path(tempfile.mkdtemp(prefix="tanklab-bench-home-"))
         atexit.register(shutil.rmtree, root, True)
@@ -219,8 +219,8 @@ def bench_home() -> Path:
 
 
 def cli_setup() -> ClientSetup:
-    """A :class:`tanklab.ua.Link` setup logging in as the bench home's engineer."""
-    from tanklab.home import SecurityHome
-    from tanklab.ua_security import cli_identity, client_setup
+    """A :class:`tanklab_io.ua.Link` setup logging in as the bench home's engineer."""
+    from tanklab_io.home import SecurityHome
+    from tanklab_io.ua_security import cli_identity, client_setup
 
     return client_setup(cli_identity(SecurityHome(bench_home()), {}))

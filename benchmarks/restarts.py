@@ -54,7 +54,7 @@ from benchmarks.security import site_config
 from tanklab.enums import GainSource, SensorFault, SupervisorMode
 from tanklab.errors import LinkError
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
-from tanklab.ua import Link
+from tanklab_io.ua import Link
 
 TIERS = ("plc", "plant", "supervisor")
 """The order of one round of kills."""

@@ -31,7 +31,7 @@ from pathlib import Path
 
 from benchmarks import accuracy, cli, cosim, mpc, report, restarts, robustness, security, stack
 from benchmarks.common import ROOT, machine, speed_reference, versions
-from tanklab.threads import limit_blas_threads
+from tanklab_io.threads import limit_blas_threads
 
 SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli", "restarts")
 
@@ -109,8 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     # The benchmark's own OPC UA clients retry connections while tiers start: keep asyncua quiet.
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
-    logging.getLogger("tanklab.ua").setLevel(logging.ERROR)
-    # as the tiers and `tankctl simulate` do (tanklab.threads): the comparators run on it too
+    logging.getLogger("tanklab_io.ua").setLevel(logging.ERROR)
+    # as the tiers and `tankctl simulate` do (tanklab_io.threads): the comparators run on it too
     limit_blas_threads()
 
     started = time.perf_counter()

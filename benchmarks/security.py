@@ -24,7 +24,7 @@ small sizes; the functions here are the full-size runs of ``make bench``.
     DeleteReferences); subscriptions with absurd parameters.
 
     Oracles: a write or call the contract must refuse (:func:`write_must_refuse`,
-    :func:`call_must_refuse`, written independently of ``tanklab.ua``'s checks) that answers
+    :func:`call_must_refuse`, written independently of ``tanklab_io.ua``'s checks) that answers
     Good is a violation, and so is a node-management request that succeeds or a raw case of a
     kind the transport limits must close (:data:`MUST_CLOSE`) that the server leaves open.
     Post-conditions (:func:`post_conditions`): the server still serves a new secure session;
@@ -98,12 +98,12 @@ from plant_sim.linearize import operating_point
 from plant_sim.models import TankNetwork, default_inputs
 from tanklab.config import SiteConfig
 from tanklab.enums import LoopMode
-from tanklab.home import SecurityHome
-from tanklab.home import provision as provision_home
 from tanklab.tags import DataType, Role, Tag, plc_tags
-from tanklab.ua import namespace_index, new_client, quiet_disconnect
-from tanklab.ua_security import LIMITS, ClientIdentity, secure_client
-from tanklab.users import Credentials, load_credentials
+from tanklab_io.home import SecurityHome
+from tanklab_io.home import provision as provision_home
+from tanklab_io.ua import namespace_index, new_client, quiet_disconnect
+from tanklab_io.ua_security import LIMITS, ClientIdentity, secure_client
+from tanklab_io.users import Credentials, load_credentials
 
 HOST = "127.0.0.1"
 SITE = load(ENERGIES)
@@ -634,7 +634,7 @@ def _scalar_of(v: ua.Variant, want: ua.VariantType) -> Any:
 def write_must_refuse(tag: Tag | None, role: Role, wv: ua.WriteValue) -> bool:
     """Whether the contract requires the server to refuse this write (any refusal status).
 
-    Written from the architecture's rules, not from ``tanklab.ua``'s code: only the Value of a
+    Written from the architecture's rules, not from ``tanklab_io.ua``'s code: only the Value of a
     writable tag, by one of its writers, as a scalar of the tag's type, finite, inside EURange,
     a member of its enumeration, inside a restricted role's allowed set, with a Good (or absent)
     status and no index range may be stored. Everything else (properties, standard nodes,

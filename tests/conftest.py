@@ -20,9 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from helpers import TEST_PASSWORDS, TEST_ROLES  # noqa: E402
-from tanklab.home import SecurityHome  # noqa: E402
-from tanklab.pki import init_pki  # noqa: E402
-from tanklab.users import Credentials, UsersFile, write_credentials  # noqa: E402
+from tanklab_io.home import SecurityHome  # noqa: E402
+from tanklab_io.pki import init_pki  # noqa: E402
+from tanklab_io.users import Credentials, UsersFile, write_credentials  # noqa: E402
 
 
 @pytest.fixture

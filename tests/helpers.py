@@ -20,11 +20,11 @@ if str(Path(__file__).resolve().parents[1]) not in sys.path:  # benchmarks/ live
 from benchmarks.procs import free_base_port as _free_base_port
 from benchmarks.procs import tankctl_pids
 
-from tanklab.home import SecurityHome
 from tanklab.tags import Role
-from tanklab.ua import new_client
-from tanklab.ua_security import ClientIdentity, ServerSecurity, secure_client
-from tanklab.users import Credentials
+from tanklab_io.home import SecurityHome
+from tanklab_io.ua import new_client
+from tanklab_io.ua_security import ClientIdentity, ServerSecurity, secure_client
+from tanklab_io.users import Credentials
 
 TEST_ROLES = {"observer": Role.OBSERVER, "operator": Role.OPERATOR, "engineer": Role.ENGINEER}
 """The login users of the test security home (see conftest.security_home)."""

@@ -6,7 +6,7 @@ the loop does not advance the model: ``Plant.Sim.Advance`` does, driven by the P
 
 The clock is injected (:class:`tanklab.clock.Clock`), so tests may drive it. A checkpoint of the
 model state (levels, volumes, pump commands, valves, leaks, disturbances, sensor faults) is
-written atomically and durably (:func:`tanklab.persist.write_atomic`) to the state file every
+written atomically and durably (:func:`tanklab_io.persist.write_atomic`) to the state file every
 ``checkpoint_s`` of wall time, at the tick after an operator's write, and on stop, and read back
 at start: water does not vanish when the simulator restarts, and the server publishes the
 restored settings on its writable nodes (restored means shown).
@@ -22,8 +22,8 @@ from plant_sim.plant import PlantSimulator
 from plant_sim.server import PlantServer
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
-from tanklab.persist import read_json, write_json_atomic
-from tanklab.ua_security import ServerSecurity
+from tanklab_io.persist import read_json, write_json_atomic
+from tanklab_io.ua_security import ServerSecurity
 
 log = logging.getLogger(__name__)
 

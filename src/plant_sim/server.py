@@ -1,6 +1,6 @@
 """The plant's OPC UA server: the contract's plant nodes over a :class:`PlantSimulator`.
 
-Client writes go through :class:`tanklab.ua.WriteGuard` (type, finiteness, EURange, enum,
+Client writes go through :class:`tanklab_io.ua.WriteGuard` (type, finiteness, EURange, enum,
 status) and then through the simulator's own setters, one handler per writable tag
 (:meth:`PlantServer.write_handlers`), so a refused write never reaches the model and the node
 keeps its old value. ``Plant.Sim.Advance(seconds, commands)`` is the
@@ -24,8 +24,8 @@ from tanklab.config import SiteConfig
 from tanklab.enums import SensorFault
 from tanklab.handlers import HandlerTable
 from tanklab.tags import Tag, plant_tags, tags_by_path
-from tanklab.ua import MethodHandler, Publisher, WriteHandler
-from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
+from tanklab_io.ua import MethodHandler, Publisher, WriteHandler
+from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,7 @@ class PlantServer:
     site : the site config (its plant section is simulated).
     sim : the simulator to serve (shared with the runtime that advances it).
     host, port : where to listen.
-    security : PKI, users and audit directory (:mod:`tanklab.ua_security`).
+    security : PKI, users and audit directory (:mod:`tanklab_io.ua_security`).
     lockstep : whether ``Plant.Sim.Advance`` is allowed (the plant then ignores the wall clock).
     """
 

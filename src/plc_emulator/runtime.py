@@ -15,7 +15,7 @@ and acknowledges them while the plant integrates (decision 0013).
 Retentive memory (``plc.retain_file``, or the ``retain_file`` argument: ``tankctl plc
 --retain-file``): SP, SP limits, mode, manual MV, applied gains with their source, latched
 trips, each loop's MV, the scan counter and the model time, written atomically and durably
-(:func:`tanklab.persist.write_atomic`: temp file, fsync, rename) after every scan that changed
+(:func:`tanklab_io.persist.write_atomic`: temp file, fsync, rename) after every scan that changed
 them, after every applied operator write or accepted call and at stop, by a writer thread
 (:class:`RetainedStore`: the scan never waits for the disk; the latest state wins). When the
 file exists at start the PLC warm-restarts (``cold=True``, ``tankctl plc --cold``, starts from
@@ -44,8 +44,8 @@ from plc_emulator.program import PlcProgram, ScanInputs
 from plc_emulator.server import PlcServer
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
-from tanklab.persist import read_json, write_json_atomic
-from tanklab.ua_security import ClientIdentity, ServerSecurity, client_setup
+from tanklab_io.persist import read_json, write_json_atomic
+from tanklab_io.ua_security import ClientIdentity, ServerSecurity, client_setup
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ class RetainedStore:
     """The retentive memory file, written off the scan.
 
     :meth:`offer` takes a snapshot (``PlcProgram.retained()``) and returns at once; a writer
-    thread stores it atomically and durably (:func:`tanklab.persist.write_json_atomic`: temp
+    thread stores it atomically and durably (:func:`tanklab_io.persist.write_json_atomic`: temp
     file, fsync, rename), one write at a time. A snapshot offered while a write is in flight
     waits for it, and a newer one replaces it (the latest state wins: under load the file skips
     intermediate scans, never the last one). So the scan never waits for the disk (an fsync is

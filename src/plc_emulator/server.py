@@ -1,7 +1,7 @@
 """The PLC's OPC UA server: the contract's PLC nodes over a :class:`PlcProgram`.
 
 Writes to ``SP``, ``SPLow``, ``SPHigh``, ``Mode``, ``ManualMV``, ``RemoteMV`` and
-``Supervisor.Heartbeat`` pass the contract's checks (:class:`tanklab.ua.WriteGuard`: type,
+``Supervisor.Heartbeat`` pass the contract's checks (:class:`tanklab_io.ua.WriteGuard`: type,
 finiteness, EURange, enum) and then the program's own, through the tag's own handler
 (:meth:`PlcServer.write_handlers` over :func:`plc_emulator.writes.program_writes`; a refused
 write answers a Bad status and the old value stays).
@@ -10,12 +10,12 @@ boundary: BadOutOfRange (not finite or outside the gain box), BadTypeMismatch (w
 types, checked by the adapter), BadInvalidState (a block without PID gains; for the supervisor's
 identity also a supervisor that is not trusted yet, or a loop an engineer holds). Who called
 decides the label: the supervisor's identity stages SUPERVISOR gains, an engineer's session
-ENGINEER gains (the session's user comes from :data:`tanklab.ua.CURRENT_USER`, set for the
+ENGINEER gains (the session's user comes from :data:`tanklab_io.ua.CURRENT_USER`, set for the
 request being served). ``LIC{j}.ResetGains()`` stages the configured gains (source FIXED,
 releasing an engineer's hold; BadInvalidState while a mode change is pending or for a block
 without PID gains); ``LIC{j}.ReleaseGains()`` hands an ENGINEER loop back (source FIXED, gains
 kept). Role checks and the audit record of every call are the method adapter's
-(:mod:`tanklab.ua`). ``Interlock.Reset()`` resets the latched trips whose level is low enough.
+(:mod:`tanklab_io.ua`). ``Interlock.Reset()`` resets the latched trips whose level is low enough.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from tanklab.config import SiteConfig
 from tanklab.enums import GainSource
 from tanklab.handlers import HandlerTable
 from tanklab.tags import HEARTBEAT_PATH, Role, Tag, plc_tags, tags_by_path
-from tanklab.ua import CURRENT_USER, MethodHandler, Publisher, TankUser, WriteHandler
-from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
+from tanklab_io.ua import CURRENT_USER, MethodHandler, Publisher, TankUser, WriteHandler
+from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
 

@@ -8,7 +8,7 @@ goes to, with the value converted to the setter's type. The OPC UA server
 co-simulation's in-process PLC port (:class:`tankctl.cosim.ProgramPort`) applies a write through
 :func:`apply_write`, the same table, so a value reaches the program the same way, with the same
 checks, whichever way it travelled. The contract's own checks (type, finiteness, EURange,
-enumeration) run before, in :class:`tanklab.ua.WriteGuard` for OPC UA; the program's checks run
+enumeration) run before, in :class:`tanklab_io.ua.WriteGuard` for OPC UA; the program's checks run
 in its setters (ValueError or KeyError: refused, nothing changed).
 """
 

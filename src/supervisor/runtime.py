@@ -35,8 +35,8 @@ from tanklab.clock import Clock, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
 from tanklab.enums import SupervisorMode
 from tanklab.errors import LinkError
-from tanklab.persist import read_json, write_json_atomic
-from tanklab.ua_security import ClientIdentity, ServerSecurity, client_setup
+from tanklab_io.persist import read_json, write_json_atomic
+from tanklab_io.ua_security import ClientIdentity, ServerSecurity, client_setup
 
 log = logging.getLogger(__name__)
 

@@ -23,8 +23,8 @@ from tanklab.config import SiteConfig
 from tanklab.enums import MpcStatus, SupervisorMode
 from tanklab.handlers import HandlerTable
 from tanklab.tags import Tag, supervisor_tags, tags_by_path
-from tanklab.ua import Publisher, WriteHandler
-from tanklab.ua_security import ServerSecurity, TierServer, start_tier_server
+from tanklab_io.ua import Publisher, WriteHandler
+from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
 log = logging.getLogger(__name__)
 

@@ -29,7 +29,7 @@ from tanklab.errors import TanklabError
 from tanklab.tags import render_markdown
 
 if TYPE_CHECKING:
-    from tanklab.ua_security import ServerSecurity
+    from tanklab_io.ua_security import ServerSecurity
 
 app = typer.Typer(
     name="tankctl",
@@ -65,8 +65,8 @@ AuditOpt = Annotated[
 
 def server_security(home: Path | None, audit_dir: Path | None) -> ServerSecurity:
     """A tier's security settings from its options, their environment twins and the defaults."""
-    from tanklab.home import SecurityHome, default_home
-    from tanklab.ua_security import ServerSecurity
+    from tanklab_io.home import SecurityHome, default_home
+    from tanklab_io.ua_security import ServerSecurity
 
     audit = audit_dir or (Path(v) if (v := _env("TANKLAB_AUDIT_DIR")) else None)
     return ServerSecurity(SecurityHome(home or default_home()), audit)
@@ -193,7 +193,7 @@ def linearize(
     from plant_sim.linearize import linearize as lin
     from plant_sim.linearize import operating_point
     from plant_sim.models import TankNetwork, default_inputs
-    from tanklab.threads import limit_blas_threads
+    from tanklab_io.threads import limit_blas_threads
 
     limit_blas_threads()
 
@@ -267,9 +267,9 @@ def _url(flag: str | None, env: str, default: str) -> str:
 
 def serve(tier: str, banner: str, runner: Any) -> None:
     """Run a tier's ``runner(stop, ready)`` until SIGINT/SIGTERM; print ``banner`` when it serves."""
-    from tanklab.threads import limit_blas_threads
+    from tanklab_io.threads import limit_blas_threads
 
-    limit_blas_threads()  # a tier computes every scan: one BLAS thread (tanklab.threads)
+    limit_blas_threads()  # a tier computes every scan: one BLAS thread (tanklab_io.threads)
     setup_logging()
 
     async def main(stop: asyncio.Event) -> None:
@@ -475,7 +475,7 @@ def up(
     operator commands read by default. Piped output (or --no-board) gives one line per event.
     SIGINT/SIGTERM stop every tier within 10 s, at any moment, and ``up`` says what was saved."""
     from tankctl.up import LocalStack, PreflightError, StopSignals, run_stack, run_up
-    from tanklab.home import SecurityHome, default_home
+    from tanklab_io.home import SecurityHome, default_home
 
     # From here on a signal stops `up` through its one stop path, never halfway through a step.
     signals = StopSignals()
@@ -512,7 +512,7 @@ def up(
     # The board is an OPC UA client; its reconnect chatter (and that of the start-up probes)
     # must not scroll over the board or the event lines.
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
-    logging.getLogger("tanklab.ua").setLevel(logging.ERROR)
+    logging.getLogger("tanklab_io.ua").setLevel(logging.ERROR)
 
     async def main(stop: asyncio.Event, cause: Any) -> int:
         return await run_stack(
@@ -536,7 +536,7 @@ def main() -> None:
 
     Operator commands import only what they use (docs/decisions/0023-lazy-cli-imports.md): the
     commands that compute (the tiers, ``linearize``, ``simulate``, ``compare``) import numpy and
-    scipy and limit BLAS to one thread themselves (``tanklab.threads``).
+    scipy and limit BLAS to one thread themselves (``tanklab_io.threads``).
     """
     try:
         app()

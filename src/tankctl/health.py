@@ -30,9 +30,9 @@ from typing import Any, NoReturn
 
 from asyncua import ua
 
-from tanklab.home import SecurityHome, default_home
-from tanklab.ua import new_client, resolve
-from tanklab.ua_security import ClientIdentity, secure_client
+from tanklab_io.home import SecurityHome, default_home
+from tanklab_io.ua import new_client, resolve
+from tanklab_io.ua_security import ClientIdentity, secure_client
 
 DEFAULT_PATHS = {
     "plant": "Plant.Sim.Time",

@@ -35,10 +35,10 @@ from typing import Annotated, Any, NoReturn, TypeVar
 import typer
 
 from tankctl.usage import OneLineUsage
-from tanklab.containers import CONTAINER_GID, CONTAINER_UID, container_root, lay_out
 from tanklab.errors import TanklabError
-from tanklab.home import SecurityHome, default_home
-from tanklab.pki import (
+from tanklab_io.containers import CONTAINER_GID, CONTAINER_UID, container_root, lay_out
+from tanklab_io.home import SecurityHome, default_home
+from tanklab_io.pki import (
     DEFAULT_DAYS,
     DEFAULT_HOSTS,
     IDENTITIES,
@@ -50,7 +50,7 @@ from tanklab.pki import (
     revoke,
     trust,
 )
-from tanklab.users import LOGIN_ROLES, UsersFile
+from tanklab_io.users import LOGIN_ROLES, UsersFile
 
 __all__ = ["ENV_NEW_PASSWORD", "pki_app", "register", "user_app"]
 
@@ -102,7 +102,7 @@ def _writable_home(home: Path | None) -> SecurityHome:
 
 
 def _upgraded(pki: Pki) -> Pki:
-    """``pki`` after :func:`tanklab.pki.migrate`, each change told on stderr (one line each)."""
+    """``pki`` after :func:`tanklab_io.pki.migrate`, each change told on stderr (one line each)."""
     if pki.root.is_dir():
         for change in _guard(lambda: migrate(pki)):
             typer.echo(f"tankctl: PKI upgraded (decision 0022): {change}", err=True)

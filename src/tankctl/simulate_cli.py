@@ -37,8 +37,8 @@ VariantOpt = Annotated[
 
 
 def _run(file: Path, config: Path | None, variant: list[str] | None) -> ScenarioResult:
-    # The co-simulation computes: one BLAS thread, as in the tiers (tanklab.threads).
-    from tanklab.threads import limit_blas_threads
+    # The co-simulation computes: one BLAS thread, as in the tiers (tanklab_io.threads).
+    from tanklab_io.threads import limit_blas_threads
 
     limit_blas_threads()
     from tankctl.simulate import run_scenario

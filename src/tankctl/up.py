@@ -5,7 +5,7 @@ Lifecycle, in this order (decision record 0018):
 1. **Preflight**, before anything is started or written: every port the stack will bind is free
    (checked by binding it, as the tiers will), no pid file of the run's directory names a running
    tanklab process (a stale one is replaced), the site's PKI and the CLI's login are complete
-   (created on first run as :func:`tanklab.home.provision` does). A failure is one line and
+   (created on first run as :func:`tanklab_io.home.provision` does). A failure is one line and
    :class:`PreflightError`; nothing was started and no pid file was touched.
 2. **Start** the plant, the PLC and the supervisor bottom-up as child processes
    (``python -m tankctl <tier>``), each in its own session (process group), logging to its own
@@ -47,11 +47,11 @@ from tankctl.up_board import Board
 from tankctl.up_process import Tier, last_error_line, running_pid
 from tanklab.config import SiteConfig
 from tanklab.errors import TanklabError
-from tanklab.home import SecurityHome, default_home, provision
-from tanklab.pki import IDENTITIES
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
-from tanklab.ua import Link
-from tanklab.ua_security import ClientIdentity, cli_identity, client_setup
+from tanklab_io.home import SecurityHome, default_home, provision
+from tanklab_io.pki import IDENTITIES
+from tanklab_io.ua import Link
+from tanklab_io.ua_security import ClientIdentity, cli_identity, client_setup
 
 __all__ = [
     "LocalStack",

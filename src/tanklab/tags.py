@@ -9,7 +9,7 @@ LIC1 only), so the contract is a function of the :class:`~tanklab.config.SiteCon
 Each :class:`Tag` carries its data type, engineering unit, EURange, which roles may write it,
 and a description. Analog values (a unit and a range) become AnalogItemType variables;
 enumerations become Int32 MultiStateDiscreteType variables with EnumStrings; methods carry
-their argument lists. This module is pure data; :mod:`tanklab.ua` builds the nodes on an
+their argument lists. This module is pure data; :mod:`tanklab_io.ua` builds the nodes on an
 asyncua server and resolves them on a client.
 """
 

@@ -30,10 +30,10 @@ from asyncua import Client, ua
 from helpers import ROOT, free_port, wait_until
 from plant_sim.runtime import run_plant
 from tanklab.config import load_site
-from tanklab.home import SecurityHome
-from tanklab.ua import resolve
-from tanklab.ua_security import ClientIdentity, ServerSecurity, secure_client
-from tanklab.users import Credentials
+from tanklab_io.home import SecurityHome
+from tanklab_io.ua import resolve
+from tanklab_io.ua_security import ClientIdentity, ServerSecurity, secure_client
+from tanklab_io.users import Credentials
 
 NODE = shutil.which("node")
 NODE_DIR = ROOT / "tests" / "node"

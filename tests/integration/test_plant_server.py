@@ -22,8 +22,8 @@ from plc_emulator.link import FieldLink
 from plc_emulator.program import PlcProgram
 from plc_emulator.runtime import warm_resume
 from tanklab.config import load_site
-from tanklab.ua import read_values, resolve
-from tanklab.ua_security import client_setup
+from tanklab_io.ua import read_values, resolve
+from tanklab_io.ua_security import client_setup
 
 ROOT = Path(__file__).resolve().parents[2]
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")

@@ -16,8 +16,8 @@ from asyncua import ua
 from helpers import ROOT, free_port, secure, server_security
 from tanklab.config import load_site
 from tanklab.tags import Tag, plc_tags
-from tanklab.ua import MethodHandler, WriteHandler
-from tanklab.ua_security import start_tier_server
+from tanklab_io.ua import MethodHandler, WriteHandler
+from tanklab_io.ua_security import start_tier_server
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
 

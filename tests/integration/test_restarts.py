@@ -34,7 +34,7 @@ from helpers import ROOT, TierProcess, secure, wait_until
 from tanklab.config import load_site
 from tanklab.enums import GainSource, LoopMode, SensorFault
 from tanklab.tags import plant_tags, plc_tags
-from tanklab.ua import read_values, resolve
+from tanklab_io.ua import read_values, resolve
 
 if str(ROOT) not in sys.path:  # the benchmarks package (shared generators and configs) lives at the root
     sys.path.insert(0, str(ROOT))

@@ -42,14 +42,14 @@ from plc_emulator.program import PlcProgram
 from plc_emulator.server import PlcServer
 from supervisor.cycle import SupervisorCore
 from supervisor.server import SupervisorServer
-from tanklab.audit import read_audit
 from tanklab.config import load_site
 from tanklab.enums import LoopMode
-from tanklab.pki import init_pki, issue, revoke, self_signed, trust
 from tanklab.tags import Role, Tag, plant_tags, plc_tags, supervisor_tags
-from tanklab.ua import variant
-from tanklab.ua_security import LIMITS, ClientIdentity, secure_client
-from tanklab.users import Credentials
+from tanklab_io.audit import read_audit
+from tanklab_io.pki import init_pki, issue, revoke, self_signed, trust
+from tanklab_io.ua import variant
+from tanklab_io.ua_security import LIMITS, ClientIdentity, secure_client
+from tanklab_io.users import Credentials
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
 
@@ -263,7 +263,7 @@ async def test_untrusted_expired_revoked_and_mismatched_certificates_are_refused
         shutil.copytree(base.root / "pki", root / "pki")
         shutil.copy(cert, root / "pki" / "own" / "cli.der")
         shutil.copy(key, root / "pki" / "private" / "cli.pem")
-        from tanklab.home import SecurityHome
+        from tanklab_io.home import SecurityHome
 
         return ClientIdentity(SecurityHome(root), "cli", login)
 

@@ -17,9 +17,9 @@ from helpers import ROOT
 from plant_sim.plant import PlantSimulator
 from plant_sim.server import PlantServer
 from plc_emulator.program import PlcProgram, ScanInputs
-from tanklab import persist
 from tanklab.config import SiteConfig, load_site
 from tanklab.enums import GainSource, LoopMode, SensorFault
+from tanklab_io import persist
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
 """Two PID loops (LIC1 on T1/P1, LIC2 on T2/P2, errors in m), high-high trips on T1 and T2."""

@@ -42,8 +42,8 @@ from asyncua import ua
 from helpers import ROOT, TEST_PASSWORDS, TierProcess, secure, session_home, wait_until
 from tanklab.config import load_site
 from tanklab.enums import GainSource, LoopMode, SupervisorMode
-from tanklab.ua import resolve
-from tanklab.users import Credentials
+from tanklab_io.ua import resolve
+from tanklab_io.users import Credentials
 
 if str(ROOT) not in sys.path:  # the benchmarks package (shared generators and configs) lives at the root
     sys.path.insert(0, str(ROOT))

@@ -9,7 +9,7 @@ going on through the flood. The flood driver is ``benchmarks.security.watched_fl
 A burst of failed logins (user names that do not exist, which the per-name lockout does not stop)
 is refused, login by login, while the PLC scans on, and the watching session keeps working. (A
 password login costs the server one scrypt, ~70 ms; it runs in a worker thread before asyncua's
-synchronous user lookup, ``tanklab.ua_security.TankUserManager.preverify``, and more than ten
+synchronous user lookup, ``tanklab_io.ua_security.TankUserManager.preverify``, and more than ten
 failures a minute suspend password checks altogether.)
 
 Timing properties, deadlines kept (``PLC.Status.Overruns`` unchanged) during the flood and the
@@ -29,9 +29,9 @@ from pathlib import Path
 import pytest
 
 from helpers import ROOT, TEST_PASSWORDS, TierProcess, secure, session_home
-from tanklab.ua import new_client
-from tanklab.ua_security import ClientIdentity, secure_client
-from tanklab.users import Credentials
+from tanklab_io.ua import new_client
+from tanklab_io.ua_security import ClientIdentity, secure_client
+from tanklab_io.users import Credentials
 
 if str(ROOT) not in sys.path:  # the benchmarks package (shared flood driver) lives at the root
     sys.path.insert(0, str(ROOT))

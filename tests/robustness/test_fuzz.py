@@ -32,7 +32,7 @@ from asyncua import ua
 
 from helpers import ROOT, TEST_PASSWORDS, TierProcess, secure, session_home, wait_until
 from tanklab.tags import Role, Tag, tags_by_path
-from tanklab.users import Credentials
+from tanklab_io.users import Credentials
 
 if str(ROOT) not in sys.path:  # the benchmarks package (shared generators) lives at the root
     sys.path.insert(0, str(ROOT))

@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 
 from helpers import ROOT, TierProcess, free_base_port, secure
 from tankctl.simulate_cli import PLOTS_MISSING
-from tanklab.ua import resolve
+from tanklab_io.ua import resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
 
@@ -97,11 +97,11 @@ def test_help_loads_no_numerics(argv: list[str]) -> None:
 
 def test_a_computing_command_still_loads_its_numerics() -> None:
     """``linearize`` computes: it loads numpy, scipy and plant_sim when it runs, and limits
-    BLAS to one thread as before (tanklab.threads)."""
+    BLAS to one thread as before (tanklab_io.threads)."""
     p, modules = _run("linearize", CONFIG, "--json")
     assert p.returncode == 0, p.stderr
     assert len(json.loads(p.stdout)["A"]) == 3
-    assert {"numpy", "scipy.linalg", "plant_sim.linearize", "tanklab.threads"} <= set(modules)
+    assert {"numpy", "scipy.linalg", "plant_sim.linearize", "tanklab_io.threads"} <= set(modules)
 
 
 def test_every_command_is_still_listed() -> None:

@@ -29,8 +29,8 @@ import pytest
 from asyncua import Client, ua
 
 from helpers import ROOT, TEST_PASSWORDS, free_port, identity, session_home, stop_process
-from tanklab.ua_security import ClientIdentity, secure_client
-from tanklab.users import Credentials
+from tanklab_io.ua_security import ClientIdentity, secure_client
+from tanklab_io.users import Credentials
 
 pytestmark = pytest.mark.process
 

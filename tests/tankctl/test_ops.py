@@ -43,7 +43,7 @@ from tanklab.config import load_site
 from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
 from tanklab.tags import Tier
-from tanklab.ua import resolve
+from tanklab_io.ua import resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
 TWO_TANK = "configs/two_tank_interacting.yaml"

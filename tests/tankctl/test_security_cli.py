@@ -19,10 +19,10 @@ from typer.testing import CliRunner
 
 from tankctl import security_cli
 from tankctl.security_cli import register
-from tanklab.home import SecurityHome
-from tanklab.pki import IDENTITIES, read_certificate, self_signed
 from tanklab.tags import Role
-from tanklab.users import UsersFile
+from tanklab_io.home import SecurityHome
+from tanklab_io.pki import IDENTITIES, read_certificate, self_signed
+from tanklab_io.users import UsersFile
 
 NEW_PASSWORD = "a-long-password-42"
 

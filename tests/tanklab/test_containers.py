@@ -1,4 +1,4 @@
-"""tanklab.containers.lay_out: per-tier container homes owned by the image's user.
+"""tanklab_io.containers.lay_out: per-tier container homes owned by the image's user.
 
 The suite runs as root on the development machines, so the chown to uid 10001 is real here;
 the non-root rule is checked through ``euid`` (the caller's uid as the function sees it).
@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from tanklab.containers import CONTAINER_GID, CONTAINER_UID, TIERS, container_root, lay_out
 from tanklab.errors import SecurityError
-from tanklab.home import SecurityHome
-from tanklab.pki import IDENTITIES, init_pki
 from tanklab.tags import Role
-from tanklab.users import UsersFile
+from tanklab_io.containers import CONTAINER_GID, CONTAINER_UID, TIERS, container_root, lay_out
+from tanklab_io.home import SecurityHome
+from tanklab_io.pki import IDENTITIES, init_pki
+from tanklab_io.users import UsersFile
 
 needs_root = pytest.mark.skipif(os.geteuid() != 0, reason="chown to another uid needs root")
 

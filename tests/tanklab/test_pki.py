@@ -24,8 +24,9 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from tanklab.errors import SecurityError
-from tanklab.home import SecurityHome, provision
-from tanklab.pki import (
+from tanklab.tags import APPLICATION_URIS
+from tanklab_io.home import SecurityHome, provision
+from tanklab_io.pki import (
     IDENTITIES,
     SERVER_IDENTITIES,
     Pki,
@@ -39,7 +40,6 @@ from tanklab.pki import (
     self_signed,
     trust,
 )
-from tanklab.tags import APPLICATION_URIS
 
 STRICT = CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT
 
@@ -410,7 +410,7 @@ def test_an_old_home_is_upgraded_on_first_use_and_logged(
     pki, key = _old_layout(tmp_path / "pki")
     ca = pki.ca_cert.read_bytes()
     assert not pki.exists()  # so that provision / up run init_pki, which upgrades it
-    with caplog.at_level("WARNING", logger="tanklab.pki"):
+    with caplog.at_level("WARNING", logger="tanklab_io.pki"):
         init_pki(pki.root)
     assert pki.exists()
     assert not pki.legacy_ca_key.exists()
@@ -421,7 +421,7 @@ def test_an_old_home_is_upgraded_on_first_use_and_logged(
         x509.load_pem_x509_crl(pki.crl_pem.read_bytes()).public_bytes(serialization.Encoding.DER)
         == pki.crl_file.read_bytes()
     )
-    logged = [r.getMessage() for r in caplog.records if r.name == "tanklab.pki"]
+    logged = [r.getMessage() for r in caplog.records if r.name == "tanklab_io.pki"]
     assert logged == [
         f"PKI upgraded (decision 0022): {pki.legacy_ca_key}: the CA private key, "
         f"renamed to {pki.ca_key} (0600)",

@@ -1,4 +1,4 @@
-"""tanklab.threads: one BLAS thread for every BLAS library, whatever was imported before."""
+"""tanklab_io.threads: one BLAS thread for every BLAS library, whatever was imported before."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ def test_limit_reaches_numpy_and_scipy_blas_in_a_fresh_process() -> None:
     (behind scipy.linalg.lapack) must still end up at one thread, as numpy's does."""
     code = (
         "import json\n"
-        "from tanklab.threads import limit_blas_threads\n"
+        "from tanklab_io.threads import limit_blas_threads\n"
         "limit_blas_threads()\n"
         "from scipy.linalg import lapack\n"
         "from threadpoolctl import threadpool_info\n"

@@ -1,4 +1,4 @@
-"""Pure checks of the role and method-call rules of :mod:`tanklab.ua` (no server needed)."""
+"""Pure checks of the role and method-call rules of :mod:`tanklab_io.ua` (no server needed)."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ from typing import Any
 
 from asyncua import ua
 
-from tanklab.audit import AuditLog, read_audit
 from tanklab.enums import LoopMode
 from tanklab.tags import Argument, DataType, Role, Tag
-from tanklab.ua import CURRENT_USER, TankUser, _method_adapter, authorize, who
+from tanklab_io.audit import AuditLog, read_audit
+from tanklab_io.ua import CURRENT_USER, TankUser, _method_adapter, authorize, who
 
 MODE = Tag(
     path="PLC.LIC1.Mode",

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import pytest
 
-import tanklab.users as users_mod
+import tanklab_io.users as users_mod
 from tanklab.errors import SecurityError
-from tanklab.home import ENV_HOME, SecurityHome, default_home, provision
 from tanklab.tags import Role
-from tanklab.users import (
+from tanklab_io.home import ENV_HOME, SecurityHome, default_home, provision
+from tanklab_io.users import (
     ENV_PASSWORD,
     ENV_USER,
     LOGIN_ROLES,

@@ -38,7 +38,7 @@ config or scenario, an unreachable endpoint (``tankctl: cannot reach plc at URL:
 refused login (``tankctl: login as 'alice' refused: wrong user name or password, or the account is
 locked (plc at URL)``; never reported as unreachable). The login is ``TANKLAB_USER`` +
 ``TANKLAB_PASSWORD``, else the security home's credentials file; only one of the two variables
-set is an error before anything connects (:func:`tanklab.ua_security.cli_identity`).
+set is an error before anything connects (:func:`tanklab_io.ua_security.cli_identity`).
 Nothing prints a traceback: asyncua's and tanklab's loggers are held at ERROR while these
 commands run, and every failure at the OPC UA boundary becomes one line.
 

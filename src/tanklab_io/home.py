@@ -2,8 +2,8 @@
 
 Layout (``root`` and every directory in it 0700)::
 
-    root/pki/          the PKI (see :mod:`tanklab.pki`)
-    root/users.json    the users file (see :mod:`tanklab.users`), 0600
+    root/pki/          the PKI (see :mod:`tanklab_io.pki`)
+    root/users.json    the users file (see :mod:`tanklab_io.users`), 0600
     root/credentials   the CLI's own login (``user=`` / ``password=``), 0600
     root/audit/        the servers' audit logs
 
@@ -18,9 +18,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from tanklab.pki import DEFAULT_HOSTS, Pki, init_pki
 from tanklab.tags import Role
-from tanklab.users import Credentials, UsersFile, generate_password, write_credentials
+from tanklab_io.pki import DEFAULT_HOSTS, Pki, init_pki
+from tanklab_io.users import Credentials, UsersFile, generate_password, write_credentials
 
 __all__ = ["ENV_HOME", "FIRST_USER", "SecurityHome", "default_home", "provision"]
 
@@ -82,7 +82,7 @@ class SecurityHome:
 def provision(home: SecurityHome, *, hosts: Sequence[str] = DEFAULT_HOSTS) -> str | None:
     """First-use set-up: a PKI, and an Engineer account when there is no user; idempotent.
 
-    Initializes the PKI when it is incomplete (:func:`tanklab.pki.init_pki`). When the users
+    Initializes the PKI when it is incomplete (:func:`tanklab_io.pki.init_pki`). When the users
     file has no user, creates ``engineer`` (role Engineer) with a generated password and writes
     it to the credentials file (0600) so the CLI can log in. Returns that password when the
     account was created (for the caller to show once), else None; a second call changes nothing.

@@ -31,7 +31,7 @@ KeyUsage digitalSignature, contentCommitment (nonRepudiation), keyEncipherment,
 dataEncipherment; ExtendedKeyUsage serverAuth + clientAuth; BasicConstraints cA=false; Subject
 and Authority KeyIdentifiers. Keys are RSA 2048, signatures RSA PKCS#1 v1.5 with SHA-256 (the
 Basic256Sha256 and Aes128_Sha256_RsaOaep policies' certificate requirements). They are built
-in memory by :mod:`tanklab.certs`; this module decides where they live and writes them.
+in memory by :mod:`tanklab_io.certs`; this module decides where they live and writes them.
 
 This module reads the wall clock (certificate validity starts now) and writes files; it never
 logs or prints key material.
@@ -53,7 +53,9 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
 
-from tanklab.certs import (
+from tanklab.errors import SecurityError
+from tanklab.tags import APPLICATION_URIS
+from tanklab_io.certs import (
     CA_DAYS,
     KEY_BITS,
     application_cert,
@@ -65,8 +67,6 @@ from tanklab.certs import (
     make_ca,
     validity,
 )
-from tanklab.errors import SecurityError
-from tanklab.tags import APPLICATION_URIS
 
 __all__ = [
     "CA_DAYS",

@@ -1,9 +1,9 @@
 """X.509 for the tanklab PKI: the CA and OPC UA application-instance certificates, built in memory.
 
-What an application certificate carries, and why, is in :mod:`tanklab.pki`'s docstring
+What an application certificate carries, and why, is in :mod:`tanklab_io.pki`'s docstring
 (SubjectAltName with the ApplicationUri and the hosts, the OPC UA key usages, serverAuth and
 clientAuth, cA=false, key identifiers; RSA 2048 keys, SHA-256 signatures). These functions build
-and read certificates and keys; :mod:`tanklab.pki` decides where they live and writes them.
+and read certificates and keys; :mod:`tanklab_io.pki` decides where they live and writes them.
 Nothing here reads the clock (``now`` is an argument) or touches a file.
 """
 
@@ -131,7 +131,7 @@ def certificate_uri(cert: x509.Certificate) -> str | None:
 
 
 def key_pem(key: rsa.RSAPrivateKey) -> bytes:
-    """The key as unencrypted PKCS#8 PEM (the file is 0600; see :mod:`tanklab.pki`)."""
+    """The key as unencrypted PKCS#8 PEM (the file is 0600; see :mod:`tanklab_io.pki`)."""
     return key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )

@@ -19,9 +19,9 @@ Server side (:func:`secure_server`)
       (any names) password checks are suspended for the rest of the window. The scrypt check
       (~70 ms) runs in a worker thread before asyncua's synchronous user lookup, so logins never
       hold up the tier's event loop.
-    * Roles are checked per node by :class:`tanklab.ua.WriteGuard` and the method adapter.
+    * Roles are checked per node by :class:`tanklab_io.ua.WriteGuard` and the method adapter.
     * Audit: every write and call (accepted or refused) and every refused session activation
-      goes to the tier's :class:`~tanklab.audit.AuditLog` and is raised as a
+      goes to the tier's :class:`~tanklab_io.audit.AuditLog` and is raised as a
       ``TanklabAuditEventType`` event on the Server object.
     * Limits (:data:`LIMITS`): 64 KiB chunks, at most 4 per message (256 KiB), 16 queued
       messages per connection, 256 connections, 2 s to finish the handshake (Hello through
@@ -31,7 +31,7 @@ Server side (:func:`secure_server`)
 Client side (:func:`secure_client`)
     A tier (PLC to plant, supervisor to PLC) connects with its own certificate on the channel
     and as X509 identity; the CLI with its certificate on the channel and a user name and
-    password (:func:`tanklab.users.load_credentials`). Both check the server certificate
+    password (:func:`tanklab_io.users.load_credentials`). Both check the server certificate
     against the same trust list.
 """
 
@@ -60,13 +60,13 @@ from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 from cryptography import x509
 
-from tanklab.audit import AuditLog, AuditRecord
 from tanklab.errors import SecurityError
 from tanklab.handlers import check_handlers
-from tanklab.home import SecurityHome, default_home
-from tanklab.pki import Pki
 from tanklab.tags import APPLICATION_URIS, NAMESPACE_URI, Role, Tag, tags_by_path
-from tanklab.ua import (
+from tanklab_io.audit import AuditLog, AuditRecord
+from tanklab_io.home import SecurityHome, default_home
+from tanklab_io.pki import Pki
+from tanklab_io.ua import (
     CURRENT_USER,
     ClientSetup,
     MethodHandler,
@@ -77,7 +77,7 @@ from tanklab.ua import (
     build_nodes,
     install_write_guard,
 )
-from tanklab.users import ENV_PASSWORD, ENV_USER, Credentials, Lockout, UsersFile, load_credentials
+from tanklab_io.users import ENV_PASSWORD, ENV_USER, Credentials, Lockout, UsersFile, load_credentials
 
 log = logging.getLogger(__name__)
 
@@ -642,7 +642,7 @@ def cli_identity(
 
 
 def client_setup(identity: ClientIdentity) -> ClientSetup:
-    """A :class:`tanklab.ua.Link` ``setup`` connecting as ``identity``."""
+    """A :class:`tanklab_io.ua.Link` ``setup`` connecting as ``identity``."""
 
     async def setup(client: Client) -> None:
         await secure_client(client, identity)

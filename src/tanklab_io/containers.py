@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tanklab.errors import SecurityError
-from tanklab.home import SecurityHome
-from tanklab.pki import write_file
+from tanklab_io.home import SecurityHome
+from tanklab_io.pki import write_file
 
 __all__ = ["CONTAINER_GID", "CONTAINER_UID", "TIERS", "ContainerHome", "container_root", "lay_out"]
 

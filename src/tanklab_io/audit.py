@@ -10,7 +10,7 @@ One JSON object per line in ``<audit dir>/<tier>.log``::
 empty, ``new`` names the identity that was tried, ``status`` the reason). The file is kept
 open with ``O_APPEND`` and each record is one ``write``, so records are never interleaved or
 rewritten, and it is created 0600: it names users. The OPC UA side (events on the server object) is
-:class:`tanklab.ua_security.AuditEvents`; it subscribes to :meth:`AuditLog.record` through
+:class:`tanklab_io.ua_security.AuditEvents`; it subscribes to :meth:`AuditLog.record` through
 ``listeners``.
 """
 

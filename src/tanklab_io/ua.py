@@ -20,11 +20,11 @@ Server side
     are refused: a batch is not atomic). A
     client-supplied SourceTimestamp is ignored: the server stamps its own time. Method calls get
     the same role check and precise status codes. Every write and call, accepted or refused, is
-    recorded in the tier's :class:`~tanklab.audit.AuditLog`.
+    recorded in the tier's :class:`~tanklab_io.audit.AuditLog`.
 
 Who is asking
     The session's user is a :class:`TankUser` (made by
-    :class:`tanklab.ua_security.TankUserManager`); the request being served sets
+    :class:`tanklab_io.ua_security.TankUserManager`); the request being served sets
     :data:`CURRENT_USER` (a context variable of the request's task) so that method handlers,
     which asyncua calls without the session, know it too.
 
@@ -54,10 +54,10 @@ from asyncua import Client, Node, Server, ua
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.address_space import AttributeService
 
-from tanklab.audit import AuditLog
 from tanklab.clock import Clock, MonotonicClock
 from tanklab.errors import LinkError
 from tanklab.tags import NAMESPACE_URI, DataType, Role, Tag, link_status_paths
+from tanklab_io.audit import AuditLog
 
 log = logging.getLogger(__name__)
 
@@ -529,7 +529,7 @@ async def write_value(node: Node, tag: Tag, value: Any) -> ua.StatusCode:
 
 ClientSetup = Callable[[Client], Awaitable[None]]
 """Prepares a new client before it connects (security policy, certificate, identity):
-:func:`tanklab.ua_security.client_setup`."""
+:func:`tanklab_io.ua_security.client_setup`."""
 
 SESSION_TIMEOUT_MS = 30_000
 """Session timeout a link asks for [ms]: a dead client's session is dropped within 30 s."""
