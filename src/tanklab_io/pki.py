@@ -67,6 +67,7 @@ from tanklab_io.certs import (
     make_ca,
     validity,
 )
+from tanklab_io.persist import write_bytes_atomic
 
 __all__ = [
     "CA_DAYS",
@@ -209,23 +210,8 @@ def _mkdir(path: Path) -> None:
 
 
 def write_file(path: Path, data: bytes, mode: int, *, owner: tuple[int, int] | None = None) -> None:
-    """Write atomically: a new file created with ``mode`` (never wider, even briefly), given to
-    ``owner`` (uid, gid) when one is given, then renamed over ``path``."""
-    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)  # the umask may have narrowed it; never widened beyond mode
-        if owner is not None and (os.stat(tmp).st_uid, os.stat(tmp).st_gid) != owner:
-            os.chown(tmp, *owner)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Write a PKI file atomically with ``mode`` (and ``owner``), its directory 0700 when new."""
+    write_bytes_atomic(path, data, mode=mode, owner=owner, dir_mode=0o700)
 
 
 def _write_cert(path: Path, cert: x509.Certificate) -> None:

@@ -41,6 +41,7 @@ from typing import Any
 
 from tanklab.errors import SecurityError
 from tanklab.tags import Role
+from tanklab_io.persist import write_bytes_atomic
 
 __all__ = [
     "ENV_PASSWORD",
@@ -367,20 +368,7 @@ def write_private(path: Path, data: bytes) -> None:
 
     The parent directory is created 0700 when missing.
     """
-    path = Path(path)
-    if not path.parent.exists():
-        path.parent.mkdir(mode=0o700, parents=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(Path(path), data, mode=0o600, dir_mode=0o700)
 
 
 def write_credentials(path: Path, creds: Credentials) -> None:
