@@ -5,7 +5,7 @@
 own session from the repository root, keeps every line it prints on stdout (``lines``; with a
 ``log`` file, also there, with stderr), waits (bounded) for the line that says it serves, and
 stops it with SIGCONT + SIGTERM, a bounded wait and SIGKILL. ``tankctl up`` starts children of
-its own: :meth:`TankctlProcess.cleanup`, which every caller runs on every path, kills by id
+its own: :meth:`TankctlProcess.cleanup`, which its callers run on every path, kills by id
 whatever of them (and whatever ``tankctl`` process bound to ``ports``) is left. Only processes
 this module started, or their children, are ever signalled.
 """
@@ -137,7 +137,8 @@ class TankctlProcess:
 
     ``ready``
         The start of the line that says the process serves: ``""`` (the default) is a tier's
-        banner, its first line; ``"started: "`` is ``tankctl up``'s; None does not wait.
+        banner, its first line on stdout (so a tier keeps stderr out of ``lines``);
+        ``"started: "`` is ``tankctl up``'s; None does not wait.
     ``log``
         A file that gets stderr and every stdout line (the benchmarks keep them); without one,
         stderr is dropped, or with ``merge_stderr`` kept in ``lines`` (``tankctl up`` in tests).
@@ -332,6 +333,7 @@ class TankctlProcess:
         if self.proc is not None and self.proc.returncode is None:
             self.proc.kill()
             await self.proc.wait()
+        await self._close()
 
     async def cleanup(self) -> None:
         """On every path: nothing of this run stays (SIGKILL to the process, its children and

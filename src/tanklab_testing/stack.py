@@ -99,7 +99,11 @@ class Stack:
         return (tier, *common, *own, *self.tier_args.get(tier, ()), *extra)
 
     async def start(self, tier: str, *extra: str) -> TankctlProcess:
-        """Start (or restart) ``tier``; returns once it serves (its banner, bounded)."""
+        """Start (or restart, once stopped or killed) ``tier``; returns once it serves (its
+        banner, bounded)."""
+        old = self.procs.get(tier)
+        if old is not None and old.running:
+            raise RuntimeError(f"{tier} of the stack on {self.base} is still running ({old.main_pid})")
         log = None if self.log_dir is None else self.log_dir / f"{tier}-{self.runs[tier]}.log"
         self.runs[tier] += 1
         proc = TankctlProcess(*self.args(tier, *extra), log=log, env=self.env)
