@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmarks.common import ENERGIES, ROOT, Goal, Summary, bench_home, fmt, speed_reference
-from benchmarks.procs import CpuMeter, Proc, free_base_port
+from benchmarks.procs import CpuMeter, bench_process
+from tanklab_testing.procs import TankctlProcess, free_base_port
 
 GOAL_S = 0.5
 """The issue's target for an operator command's median wall time on an idle machine [s]."""
@@ -172,7 +173,7 @@ def _children_cpu_s() -> float:
     return t.children_user + t.children_system
 
 
-async def _wait_ready(status: Sequence[str], up: Proc) -> None:
+async def _wait_ready(status: Sequence[str], up: TankctlProcess) -> None:
     """Until ``tankctl status`` exits 0 (the PLC answers), bounded; ``up`` must stay alive."""
     bound = time.monotonic() + READY_TIMEOUT_S
     last = ""
@@ -198,7 +199,7 @@ async def operator_commands(log_dir: Path, repeats: int, log: Callable[[str], No
     run_dir = log_dir / f"cli-{time.time_ns()}"
     base = free_base_port(3)
     where = ["--config", str(ENERGIES), "--base-port", str(base)]
-    up = Proc(
+    up = bench_process(
         "up",
         ["up", *where, "--clock", "realtime", "--speed", "1", "--no-board", "--log-dir", str(run_dir)],
         run_dir / "up.out",

@@ -1,6 +1,7 @@
 """Shared pieces of the benchmarks: summaries of samples, goals, the machine, sites, scenario.
 
-A :class:`Summary` is what every table shows: n, median and p99 (``numpy.percentile``, linear
+A :class:`Summary` (:mod:`tanklab_testing.stats`, shared with the test-support package) is
+what every table shows: n, median and p99 (``numpy.percentile``, linear
 interpolation), plus min and max. A :class:`Goal` pairs a target from the issue with the
 measured value and says met / not met.
 """
@@ -12,7 +13,7 @@ import os
 import platform
 import re
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -21,6 +22,7 @@ import numpy as np
 
 from tanklab.config import SiteConfig, load_site
 from tanklab_io.ua import ClientSetup
+from tanklab_testing.stats import Summary  # noqa: F401  (re-exported: the benchmarks take it from here)
 
 ROOT = Path(__file__).resolve().parents[1]
 ENERGIES = ROOT / "configs" / "three_tank_energies_sim.yaml"
@@ -32,45 +34,6 @@ SCENARIO_STEP_AT_S = 10.0
 """The benchmark scenario: LIC1's setpoint steps by ``SCENARIO_STEP_M`` at this model time [s]."""
 SCENARIO_STEP_M = 0.05
 SCENARIO_DURATION_S = 1000.0
-
-
-@dataclass(frozen=True)
-class Summary:
-    """Order statistics of a sample (in the sample's unit)."""
-
-    n: int
-    median: float
-    p99: float
-    minimum: float
-    maximum: float
-    mean: float
-
-    @classmethod
-    def of(cls, samples: Iterable[float]) -> Summary:
-        arr = np.asarray([s for s in samples if math.isfinite(s)], dtype=float)
-        if arr.size == 0:
-            nan = math.nan
-            return cls(0, nan, nan, nan, nan, nan)
-        p99 = np.percentile(arr, 99)
-        return cls(
-            n=int(arr.size),
-            median=float(np.median(arr)),
-            p99=float(p99),
-            minimum=float(arr.min()),
-            maximum=float(arr.max()),
-            mean=float(arr.mean()),
-        )
-
-    def scaled(self, factor: float) -> Summary:
-        """The same summary in another unit (e.g. 1e3 for s -> ms)."""
-        return Summary(
-            self.n,
-            self.median * factor,
-            self.p99 * factor,
-            self.minimum * factor,
-            self.maximum * factor,
-            self.mean * factor,
-        )
 
 
 @dataclass(frozen=True)

@@ -49,12 +49,13 @@ import yaml
 from asyncua import ua
 
 from benchmarks.common import Goal, cli_setup, fmt
-from benchmarks.procs import Proc, alive, free_base_port, tankctl_pids
-from benchmarks.security import site_config
+from benchmarks.procs import bench_process
 from tanklab.enums import GainSource, SensorFault, SupervisorMode
 from tanklab.errors import LinkError
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
 from tanklab_io.ua import Link
+from tanklab_testing.procs import alive, free_base_port, tankctl_pids
+from tanklab_testing.sites import site_config
 
 TIERS = ("plc", "plant", "supervisor")
 """The order of one round of kills."""
@@ -280,7 +281,7 @@ class Bench:
             t: Reader(f"opc.tcp://127.0.0.1:{p}/tanklab/{t}", self.tags[t], f"bench-{t}")
             for t, p in self.ports.items()
         }
-        self.up = Proc(
+        self.up = bench_process(
             "up",
             [
                 *("up", "--config", str(self.config), "--speed", f"{SPEED:g}", "--no-board"),

@@ -45,10 +45,11 @@ from benchmarks.common import (
     cli_setup,
     load,
 )
-from benchmarks.procs import CpuMeter, Proc, free_base_port
+from benchmarks.procs import CpuMeter, bench_process
 from supervisor.cycle import PlcSnapshot
 from tanklab.tags import plant_tags, plc_tags, tags_by_path
 from tanklab_io.ua import Link
+from tanklab_testing.procs import TankctlProcess, free_base_port
 
 LATENESS_RE = re.compile(
     r"PLC stopped after (\d+) scans: (\d+) overruns, lateness p50 ([\d.]+) ms p99 ([\d.]+) ms"
@@ -149,8 +150,8 @@ async def connect(url: str, tags: dict[str, Any], name: str, timeout_s: float = 
 
 @dataclass
 class Pair:
-    plant: Proc
-    plc: Proc
+    plant: TankctlProcess
+    plc: TankctlProcess
     plant_url: str
     plc_url: str
 
@@ -165,12 +166,12 @@ async def plant_and_plc(speed: float, log_dir: Path, tag: str) -> AsyncIterator[
     state = log_dir / f"{tag}-plant-state.json"
     state.unlink(missing_ok=True)
     common = ["--config", cfg, "--host", "127.0.0.1", "--speed", f"{speed:g}"]
-    plant = Proc(
+    plant = bench_process(
         "plant",
         ["plant", *common, "--port", str(base), "--state-file", str(state)],
         log_dir / f"{tag}-plant.log",
     )
-    plc = Proc(
+    plc = bench_process(
         "plc", ["plc", *common, "--port", str(base + 1), "--plant-url", plant_url], log_dir / f"{tag}-plc.log"
     )
     pair = Pair(plant, plc, plant_url, plc_url)
@@ -287,7 +288,7 @@ async def lockstep_run(log_dir: Path, duration_s: float = SCENARIO_DURATION_S) -
     base = free_base_port(3)
     plant_url = f"opc.tcp://127.0.0.1:{base}/tanklab/plant"
     plc_url = f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc"
-    up = Proc(
+    up = bench_process(
         "up",
         [
             "up",
@@ -360,7 +361,7 @@ async def realtime_stack(speed: float, wall_s: float, log_dir: Path) -> Lateness
     out = Lateness(f"tankctl up (plant + PLC + supervisor), speed {speed:g}", speed, wall_s)
     run_dir = log_dir / f"realtime-x{speed:g}-{time.time_ns()}"
     base = free_base_port(3)
-    up = Proc(
+    up = bench_process(
         "up",
         [
             "up",

@@ -1,4 +1,4 @@
-"""Test configuration: helpers importable, the repository root, and the test security home.
+"""Test configuration: the repository root, the test security home, the order of the long files.
 
 There is no unauthenticated test path: the session-wide, autouse :func:`security_home`
 provisions a PKI and one user per login role before any test runs and points
@@ -10,19 +10,15 @@ provisions a PKI and one user per login role before any test runs and points
 from __future__ import annotations
 
 import os
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from helpers import TEST_PASSWORDS, TEST_ROLES  # noqa: E402
-from tanklab_io.home import SecurityHome  # noqa: E402
-from tanklab_io.pki import init_pki  # noqa: E402
-from tanklab_io.users import Credentials, UsersFile, write_credentials  # noqa: E402
+from helpers import ROOT, TEST_PASSWORDS, TEST_ROLES  # tests/ is on pytest's pythonpath (pyproject)
+from tanklab_io.home import SecurityHome
+from tanklab_io.pki import init_pki
+from tanklab_io.users import Credentials, UsersFile, write_credentials
 
 
 @pytest.fixture

@@ -10,12 +10,12 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from benchmarks.procs import tankctl_pids
 from benchmarks.restarts import Restart, RestartsResult, box_change, goals, markdown, settings_paths
 
 from helpers import ROOT, free_port, stop_process, wait_until
 from tanklab.config import load_site
 from tanklab.tags import plant_tags, plc_tags, supervisor_tags, tags_by_path
+from tanklab_testing.procs import tankctl_pids
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
 TAGS = {

@@ -21,7 +21,6 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
-import sys
 from collections.abc import AsyncIterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -35,11 +34,9 @@ from tanklab.config import load_site
 from tanklab.enums import GainSource, LoopMode, SensorFault
 from tanklab.tags import plant_tags, plc_tags
 from tanklab_io.ua import read_values, resolve
-
-if str(ROOT) not in sys.path:  # the benchmarks package (shared generators and configs) lives at the root
-    sys.path.insert(0, str(ROOT))
-from benchmarks.procs import free_base_port  # random bases: parallel sessions do not collide
-from benchmarks.security import site_config
+from tanklab_testing.procs import free_base_port  # random bases: parallel sessions do not collide
+from tanklab_testing.sites import site_config
+from tanklab_testing.stack import Stack
 
 pytestmark = pytest.mark.process
 
@@ -137,8 +134,9 @@ async def test_plant_restart_publishes_exactly_the_state_it_resumed(tmp_path: Pa
 # ---- plant and PLC in real time -----------------------------------------------------------------
 
 
-class Stack:
-    """A plant and a PLC process on consecutive ports, restartable, with the plant sampled."""
+class SampledStack(Stack):
+    """The test-support :class:`Stack`'s plant and PLC, restartable, with the plant sampled; every
+    PLC run has its own ``--trace`` and the one retentive-memory file."""
 
     def __init__(self, tmp_path: Path, safe_state: str = "hold") -> None:
         config = site_config(tmp_path / "site.yaml", at_operating_point=True)
@@ -146,45 +144,33 @@ class Stack:
         for pump in data["plant"]["pumps"]:
             pump["watchdog_safe_state"] = safe_state
         config.write_text(yaml.safe_dump(data), encoding="utf-8")
+        super().__init__(config, free_base_port(2), speed=SPEED, state_file=tmp_path / "plant-state.json")
         self.tmp = tmp_path
-        self.config = config
         self.retain = tmp_path / "plc-retain.json"
-        self.state = tmp_path / "plant-state.json"
-        self.base = free_base_port(2)
-        self.plant_url = f"opc.tcp://127.0.0.1:{self.base}/tanklab/plant"
-        self.plc_url = f"opc.tcp://127.0.0.1:{self.base + 1}/tanklab/plc"
-        self.plant: TierProcess | None = None
-        self.plc: TierProcess | None = None
-        self.plc_runs = 0
         self.samples: list[tuple[float, float]] = []  # (plant model time, T1 true level)
         self.watchdog = False  # the plant's pump watchdog at the last sample
+
+    @property
+    def plant(self) -> TierProcess | None:
+        return self.procs.get("plant")
+
+    @property
+    def plc(self) -> TierProcess | None:
+        return self.procs.get("plc")
+
+    @property
+    def plc_runs(self) -> int:
+        return self.runs["plc"]
 
     def traces(self) -> list[Path]:
         return [self.tmp / f"plc-trace-{k}.csv" for k in range(1, self.plc_runs + 1)]
 
     async def start_plant(self) -> None:
-        common = ("--config", str(self.config), "--speed", f"{SPEED:g}")
-        args = ("plant", *common, "--port", str(self.base), "--state-file", str(self.state))
-        self.plant = await TierProcess(*args).start()
+        await self.start("plant")
 
     async def start_plc(self, *extra: str) -> None:
-        self.plc_runs += 1
-        self.plc = await TierProcess(
-            "plc",
-            "--config",
-            str(self.config),
-            "--speed",
-            f"{SPEED:g}",
-            "--port",
-            str(self.base + 1),
-            "--plant-url",
-            self.plant_url,
-            "--retain-file",
-            str(self.retain),
-            "--trace",
-            str(self.traces()[-1]),
-            *extra,
-        ).start()
+        trace = self.tmp / f"plc-trace-{self.plc_runs + 1}.csv"
+        await self.start("plc", "--retain-file", str(self.retain), "--trace", str(trace), *extra)
 
     async def sample(self) -> float:
         got = await read_nodes(self.plant_url, ["Plant.Sim.Time", "Plant.T1.Level", "Plant.Sim.Watchdog"])
@@ -201,15 +187,10 @@ class Stack:
 
         await wait_until(reached, 120, what=f"{model_s:g} s of the plant's model time")
 
-    async def down(self) -> None:
-        for proc in (self.plc, self.plant):
-            if proc is not None:
-                await proc.stop()
-
 
 @pytest.fixture
-async def stack(tmp_path: Path) -> AsyncIterator[Stack]:
-    s = Stack(tmp_path)
+async def stack(tmp_path: Path) -> AsyncIterator[SampledStack]:
+    s = SampledStack(tmp_path)
     try:
         await s.start_plant()
         await s.start_plc()
@@ -224,7 +205,7 @@ def trace_rows(path: Path) -> list[dict[str, float]]:
 
 
 async def test_plc_warm_restart_resumes_settings_model_time_and_output_then_the_plant_restarts(
-    stack: Stack,
+    stack: SampledStack,
 ) -> None:
     s = stack
 
@@ -334,7 +315,7 @@ async def test_plc_warm_restart_after_the_pumps_were_stopped_resumes_from_the_la
     watchdog has stopped the pumps; the restarted PLC starts from P1's last command, not from 0,
     and T1 comes back to its setpoint (issue 21: the cold restart let T1 fall from 0.410 to
     0.354 m and restarted from MV 0)."""
-    s = Stack(tmp_path, safe_state="off")
+    s = SampledStack(tmp_path, safe_state="off")
     try:
         await s.start_plant()
         await s.start_plc()

@@ -2,7 +2,7 @@
 
 The stack (plant, PLC, supervisor; speed 5, so one 1 s scan is 200 ms of wall time) starts at
 the default config's operating point (T1 0.4 m, T2 0.2 m, T3 0.3 m, pumps at the equilibrium
-flows; ``benchmarks.security.site_config``), with the PLC's retentive memory and the plant's
+flows; ``tanklab_testing.sites.site_config``), with the PLC's retentive memory and the plant's
 state file in the test's directory, so restarts are warm.
 
 What is judged, on model time (``Plant.Sim.Time``, ``PLC.Status.ModelTime``), from samples of
@@ -26,11 +26,9 @@ measured as 15 s of the plant's model time.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
 import signal
-import sys
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,16 +37,14 @@ from typing import Any
 import pytest
 from asyncua import ua
 
-from helpers import ROOT, TEST_PASSWORDS, TierProcess, secure, session_home, wait_until
+from helpers import ROOT, engineer_logins, secure, wait_until
 from tanklab.config import load_site
 from tanklab.enums import GainSource, LoopMode, SupervisorMode
 from tanklab_io.ua import resolve
-from tanklab_io.users import Credentials
-
-if str(ROOT) not in sys.path:  # the benchmarks package (shared generators and configs) lives at the root
-    sys.path.insert(0, str(ROOT))
-from benchmarks.procs import free_base_port  # random bases: parallel sessions do not collide
-from benchmarks.security import Logins, Probe, site_config
+from tanklab_testing.logins import Probe
+from tanklab_testing.procs import free_base_port  # random bases: parallel sessions do not collide
+from tanklab_testing.sites import site_config
+from tanklab_testing.stack import Stack
 
 pytestmark = pytest.mark.process
 
@@ -143,46 +139,24 @@ def deviation(samples: Sequence[Sample], setpoints: dict[str, float]) -> dict[st
     return {t: max((abs(s[2][t] - sp) for s in samples), default=0.0) for t, sp in setpoints.items()}
 
 
-class Stack:
-    """Plant, PLC and (optionally) supervisor processes of one test on consecutive ports."""
+class WatchedStack(Stack):
+    """The test-support :class:`Stack` (plant, PLC and, optionally, supervisor on consecutive
+    ports, restartable tier by tier) with the tiers probed and the plant sampled at every poll."""
 
     def __init__(self, tmp_path: Path, *, supervisor: bool) -> None:
-        self.config = site_config(
+        config = site_config(
             tmp_path / "site.yaml", retain=tmp_path / "plc-retain.json", at_operating_point=True
         )
-        self.state = tmp_path / "plant-state.json"
-        self.base = free_base_port(3)
-        self.urls = [
-            f"opc.tcp://127.0.0.1:{self.base + k}/tanklab/{t}"
-            for k, t in enumerate(("plant", "plc", "supervisor"))
-        ]
-        self.with_supervisor = supervisor
+        super().__init__(config, free_base_port(3), speed=SPEED, state_file=tmp_path / "plant-state.json")
+        self.tiers = ("plant", "plc", "supervisor") if supervisor else ("plant", "plc")
         self.setpoints = dict(SETPOINTS_M)
-        self.procs: dict[str, TierProcess] = {}
-        logins = Logins(session_home(), {"engineer": Credentials("engineer", TEST_PASSWORDS["engineer"])})
+        logins = engineer_logins()
         self.plant = PlantLog(Probe(self.urls[0], PLANT_PATHS, logins))
         self.plc = Probe(self.urls[1], PLC_PATHS, logins)
         self.supervisor = Probe(self.urls[2], SUPERVISOR_PATHS, logins)
 
-    def args(self, tier: str) -> tuple[str, ...]:
-        common = ("--config", str(self.config), "--speed", f"{SPEED:g}")
-        if tier == "plant":
-            return ("plant", *common, "--port", str(self.base), "--state-file", str(self.state))
-        if tier == "plc":
-            return ("plc", *common, "--port", str(self.base + 1), "--plant-url", self.urls[0])
-        return ("supervisor", *common, "--port", str(self.base + 2), "--plc-url", self.urls[1])
-
-    async def start(self, tier: str) -> None:
-        self.procs[tier] = await TierProcess(*self.args(tier)).start()
-
-    def pid(self, tier: str) -> int:
-        proc = self.procs[tier].proc
-        assert proc is not None and proc.returncode is None
-        return proc.pid
-
-    async def up(self) -> Stack:
-        for tier in ("plant", "plc", "supervisor") if self.with_supervisor else ("plant", "plc"):
-            await self.start(tier)
+    async def up(self, tiers: Sequence[str] | None = None) -> WatchedStack:
+        await super().up(tiers or self.tiers)
         await wait_until(self.regulating, 60, what="the stack scanning at its operating point")
         return self
 
@@ -206,20 +180,15 @@ class Stack:
         return got is not None and float(got["Plant.Sim.Time"]) >= t
 
     async def down(self) -> None:
+        """Close the probes, then stop every tier (frozen ones too: SIGCONT before SIGTERM)."""
         for probe in (self.plant.probe, self.plc, self.supervisor):
             await probe.close()
-        for tier in ("supervisor", "plc", "plant"):
-            if tier in self.procs:
-                with contextlib.suppress(ProcessLookupError):
-                    proc = self.procs[tier].proc
-                    if proc is not None and proc.returncode is None:
-                        os.kill(proc.pid, signal.SIGCONT)  # a frozen process must hear SIGTERM
-                await self.procs[tier].stop()
+        await super().down()
 
 
 @pytest.fixture
-async def full_stack(tmp_path: Path) -> AsyncIterator[Stack]:
-    stack = Stack(tmp_path, supervisor=True)
+async def full_stack(tmp_path: Path) -> AsyncIterator[WatchedStack]:
+    stack = WatchedStack(tmp_path, supervisor=True)
     try:
         yield await stack.up()
     finally:
@@ -227,8 +196,8 @@ async def full_stack(tmp_path: Path) -> AsyncIterator[Stack]:
 
 
 @pytest.fixture
-async def plant_and_plc(tmp_path: Path) -> AsyncIterator[Stack]:
-    stack = Stack(tmp_path, supervisor=False)
+async def plant_and_plc(tmp_path: Path) -> AsyncIterator[WatchedStack]:
+    stack = WatchedStack(tmp_path, supervisor=False)
     try:
         yield await stack.up()
     finally:
@@ -241,11 +210,11 @@ async def _write(url: str, path: str, value: ua.Variant) -> None:
         await (await resolve(client, [path]))[path].write_value(value)
 
 
-async def _write_supervisor_mode(stack: Stack, mode: SupervisorMode) -> None:
+async def _write_supervisor_mode(stack: WatchedStack, mode: SupervisorMode) -> None:
     await _write(stack.urls[2], "Supervisor.Mode", ua.Variant(int(mode), ua.VariantType.Int32))
 
 
-async def _supervisor_killed(stack: Stack, on_supervisor: str) -> tuple[float, float]:
+async def _supervisor_killed(stack: WatchedStack, on_supervisor: str) -> tuple[float, float]:
     """Kill the supervisor; wait for the PLC to fall back (``on_supervisor``: the condition the
     fallback clears); return the PLC's model time of the kill and of the fallback."""
     t_kill = float(await stack.plc.value("PLC.Status.ModelTime"))
@@ -266,7 +235,9 @@ async def _supervisor_killed(stack: Stack, on_supervisor: str) -> tuple[float, f
     return t_kill, t_fb
 
 
-async def test_supervisor_killed_in_mpc_plc_takes_over_and_levels_stay_in_band(full_stack: Stack) -> None:
+async def test_supervisor_killed_in_mpc_plc_takes_over_and_levels_stay_in_band(
+    full_stack: WatchedStack,
+) -> None:
     stack = full_stack
     await _write_supervisor_mode(stack, SupervisorMode.MPC)
 
@@ -290,7 +261,7 @@ async def test_supervisor_killed_in_mpc_plc_takes_over_and_levels_stay_in_band(f
 
 
 async def test_supervisor_killed_in_adaptive_pid_plc_falls_back_and_levels_stay_in_band(
-    full_stack: Stack,
+    full_stack: WatchedStack,
 ) -> None:
     stack = full_stack
     await _write_supervisor_mode(stack, SupervisorMode.ADAPTIVE_PID)
@@ -318,7 +289,7 @@ async def test_supervisor_killed_in_adaptive_pid_plc_falls_back_and_levels_stay_
     assert out_of_band(window, stack.setpoints, SUPERVISOR_BAND_M) == [], deviation(window, stack.setpoints)
 
 
-async def test_plc_killed_and_restarted_levels_stay_in_band_and_recover(plant_and_plc: Stack) -> None:
+async def test_plc_killed_and_restarted_levels_stay_in_band_and_recover(plant_and_plc: WatchedStack) -> None:
     stack = plant_and_plc
     await _write(stack.urls[1], "PLC.LIC1.SP", ua.Variant(0.41, ua.VariantType.Double))
     stack.setpoints["T1"] = 0.41
@@ -361,7 +332,7 @@ async def test_plc_killed_and_restarted_levels_stay_in_band_and_recover(plant_an
 
 
 async def test_plant_killed_and_restarted_resumes_its_state_and_levels_stay_in_band(
-    plant_and_plc: Stack,
+    plant_and_plc: WatchedStack,
 ) -> None:
     stack = plant_and_plc
     # Let the plant checkpoint (every 5 s of wall time) at the operating point.
@@ -392,7 +363,7 @@ async def test_plant_killed_and_restarted_resumes_its_state_and_levels_stay_in_b
     assert out_of_band(window, stack.setpoints) == [], deviation(window, stack.setpoints)
 
 
-async def test_plc_frozen_then_crashed_the_supervisor_never_stalls_silently(full_stack: Stack) -> None:
+async def test_plc_frozen_then_crashed_the_supervisor_never_stalls_silently(full_stack: WatchedStack) -> None:
     stack = full_stack
     sup = stack.supervisor
 

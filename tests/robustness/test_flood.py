@@ -3,7 +3,7 @@
 Four engineer sessions write as fast as they can (one request in flight each) a mix of valid and
 invalid values to both loops' SP, ManualMV and Mode for 5 s of wall time. No invalid write is
 accepted, and the PLC keeps its model rate: one scan period of model time per scan, the scan
-going on through the flood. The flood driver is ``benchmarks.security.watched_flood``; its
+going on through the flood. The flood driver is ``tanklab_testing.security.watched_flood``; its
 "before" reading is taken once all four sessions are logged in.
 
 A burst of failed logins (user names that do not exist, which the per-name lockout does not stop)
@@ -22,21 +22,18 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, TEST_PASSWORDS, TierProcess, secure, session_home
+from helpers import engineer_logins, secure, session_home
 from tanklab_io.ua import new_client
 from tanklab_io.ua_security import ClientIdentity, secure_client
 from tanklab_io.users import Credentials
-
-if str(ROOT) not in sys.path:  # the benchmarks package (shared flood driver) lives at the root
-    sys.path.insert(0, str(ROOT))
-from benchmarks import security
-from benchmarks.procs import free_base_port  # random bases: parallel sessions do not collide
+from tanklab_testing import security
+from tanklab_testing.procs import free_base_port  # random bases: parallel sessions do not collide
+from tanklab_testing.stack import Stack
 
 pytestmark = pytest.mark.process
 
@@ -47,24 +44,18 @@ CLIENTS = 4
 
 
 def logins() -> security.Logins:
-    return security.Logins(session_home(), {"engineer": Credentials("engineer", TEST_PASSWORDS["engineer"])})
+    return engineer_logins()
 
 
 @pytest.fixture
 async def plant_and_plc(tmp_path: Path) -> AsyncIterator[tuple[str, str]]:
     config = security.site_config(tmp_path / "site.yaml", at_operating_point=True)
-    base = free_base_port(3)
-    plant_url = f"opc.tcp://127.0.0.1:{base}/tanklab/plant"
-    common = ("--config", str(config), "--speed", f"{SPEED:g}")
-    plant = await TierProcess(
-        "plant", *common, "--port", str(base), "--state-file", str(tmp_path / "plant.json")
-    ).start()
-    plc = await TierProcess("plc", *common, "--port", str(base + 1), "--plant-url", plant_url).start()
+    stack = Stack(config, free_base_port(3), speed=SPEED, state_file=tmp_path / "plant.json")
     try:
-        yield plant_url, f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc"
+        await stack.up(("plant", "plc"))
+        yield stack.plant_url, stack.plc_url
     finally:
-        await plc.stop()
-        await plant.stop()
+        await stack.down()
 
 
 async def test_write_flood_keeps_the_scan_on_its_deadlines_and_model_rate(

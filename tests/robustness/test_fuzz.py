@@ -1,6 +1,6 @@
 """Protocol fuzz smoke of the secured PLC server (a real PLC process scanning a real plant).
 
-The case generators, oracles and post-conditions are ``benchmarks.security``'s (``make bench``
+The case generators, oracles and post-conditions are ``tanklab_testing.security``'s (``make bench``
 runs the same fuzz with 5,000 cases); here a few hundred seeded cases:
 
 * raw transport on fresh sockets: random bytes, absurd Hello messages, bogus channel ids, chunk
@@ -21,7 +21,6 @@ scan counter advances. The generators and the oracles are also checked by hand h
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 from pathlib import Path
@@ -30,14 +29,11 @@ import numpy as np
 import pytest
 from asyncua import ua
 
-from helpers import ROOT, TEST_PASSWORDS, TierProcess, secure, session_home, wait_until
+from helpers import TierProcess, engineer_logins, secure, wait_until
 from tanklab.tags import Role, Tag, tags_by_path
-from tanklab_io.users import Credentials
-
-if str(ROOT) not in sys.path:  # the benchmarks package (shared generators) lives at the root
-    sys.path.insert(0, str(ROOT))
-from benchmarks import security
-from benchmarks.procs import free_base_port  # random bases: parallel sessions do not collide
+from tanklab_testing import security
+from tanklab_testing.procs import free_base_port  # random bases: parallel sessions do not collide
+from tanklab_testing.stack import Stack
 
 SEED = 20240607
 CASES = 400
@@ -47,7 +43,7 @@ TAGS = tags_by_path(security.PLC_TAGS)
 
 def logins() -> security.Logins:
     """The session's security home with the test engineer's login."""
-    return security.Logins(session_home(), {"engineer": Credentials("engineer", TEST_PASSWORDS["engineer"])})
+    return engineer_logins()
 
 
 def _write(
@@ -139,18 +135,12 @@ def test_cases_are_seeded() -> None:
 @pytest.fixture
 async def plant_and_plc(tmp_path: Path) -> AsyncIterator[tuple[str, TierProcess]]:
     config = security.site_config(tmp_path / "site.yaml", at_operating_point=True)
-    base = free_base_port(3)
-    plant_url = f"opc.tcp://127.0.0.1:{base}/tanklab/plant"
-    common = ("--config", str(config), "--speed", SPEED)
-    plant = await TierProcess(
-        "plant", *common, "--port", str(base), "--state-file", str(tmp_path / "plant.json")
-    ).start()
-    plc = await TierProcess("plc", *common, "--port", str(base + 1), "--plant-url", plant_url).start()
+    stack = Stack(config, free_base_port(3), speed=float(SPEED), state_file=tmp_path / "plant.json")
     try:
-        yield f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc", plc
+        await stack.up(("plant", "plc"))
+        yield stack.plc_url, stack.procs["plc"]
     finally:
-        await plc.stop()
-        await plant.stop()
+        await stack.down()
 
 
 @pytest.mark.process

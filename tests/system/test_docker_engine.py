@@ -293,7 +293,7 @@ def _copy_repository(dest: Path) -> None:
 
 
 @dataclass
-class Stack:
+class ReadmeShell:
     """The README's shell session: its directory and environment, carried from line to line."""
 
     engine: Engine
@@ -379,7 +379,7 @@ def _site() -> dict[str, Any]:
     return data
 
 
-async def _after_up(stack: Stack) -> None:
+async def _after_up(stack: ReadmeShell) -> None:
     await wait_until(
         lambda: stack.health() == dict.fromkeys(TIERS, "healthy"),
         300,
@@ -394,21 +394,21 @@ async def _after_up(stack: Stack) -> None:
     stack.marks["healthy_s"] = time.time() - created_s.timestamp()
 
 
-async def _after_setpoint(stack: Stack) -> None:
+async def _after_setpoint(stack: ReadmeShell) -> None:
     code, status = stack.tankctl_json("status")
     assert code == 0
     assert status["site"] == "three_tank_energies_sim"
     assert status["plc"]["loops"]["LIC1"]["sp_m"] == pytest.approx(0.45)
 
 
-async def _after_leak(stack: Stack) -> None:
+async def _after_leak(stack: ReadmeShell) -> None:
     code, status = stack.tankctl_json("status")
     assert code == 0
     assert status["plant"]["tanks"]["T2"]["leak"] == pytest.approx(0.2)
     stack.marks["plant_time_before_restart"] = status["plant"]["model_time_s"]
 
 
-async def _after_restart_plant(stack: Stack) -> None:
+async def _after_restart_plant(stack: ReadmeShell) -> None:
     await wait_until(
         lambda: stack.health().get("plant") == "healthy", 180, what="plant healthy again", poll_s=1.0
     )
@@ -420,7 +420,7 @@ async def _after_restart_plant(stack: Stack) -> None:
     assert status["plc"]["loops"]["LIC1"]["sp_m"] == pytest.approx(0.45)
 
 
-async def _after_stop_plc(stack: Stack) -> None:
+async def _after_stop_plc(stack: ReadmeShell) -> None:
     safe = _site()["plant"]["watchdog"]["safe_state"]
     assert safe == "off"  # what the pump check below relies on
 
@@ -433,7 +433,7 @@ async def _after_stop_plc(stack: Stack) -> None:
     await wait_until(tripped, 120, what="the plant's watchdog stopping the pumps", poll_s=2.0)
 
 
-async def _after_browse_supervisor(stack: Stack) -> None:
+async def _after_browse_supervisor(stack: ReadmeShell) -> None:
     def lost() -> bool:
         code, browse = stack.tankctl_json("browse", "supervisor")
         assert code == 0
@@ -447,7 +447,7 @@ async def _after_browse_supervisor(stack: Stack) -> None:
     await wait_until(lost, 120, what="the supervisor reporting the lost PLC link", poll_s=2.0)
 
 
-async def _after_down(stack: Stack) -> None:
+async def _after_down(stack: ReadmeShell) -> None:
     assert stack.compose("ps", "-q").split() == []
     project = stack.env["COMPOSE_PROJECT_NAME"]
     volumes = stack.engine.docker(
@@ -456,7 +456,7 @@ async def _after_down(stack: Stack) -> None:
     assert volumes.split() == []
 
 
-HOOKS: dict[str, Callable[[Stack], Any]] = {
+HOOKS: dict[str, Callable[[ReadmeShell], Any]] = {
     "docker-compose up -d --build": _after_up,
     "tankctl setpoint LIC1 0.45": _after_setpoint,
     "tankctl leak T2 0.2": _after_leak,
@@ -491,7 +491,7 @@ async def test_readme_docker_section_on_a_real_engine(engine: Engine, tmp_path: 
     cert = _pip_cert()
     if cert:
         env["PIP_CERT"] = cert
-    stack = Stack(engine, work, env)
+    stack = ReadmeShell(engine, work, env)
     try:
         for line in lines:
             if _command(line).startswith("docker-compose up"):

@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import select
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -28,9 +27,10 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 
-from helpers import ROOT, TEST_PASSWORDS, free_port, identity, session_home, stop_process
+from helpers import ROOT, TEST_PASSWORDS, free_base_port, identity, session_home
 from tanklab_io.ua_security import ClientIdentity, secure_client
 from tanklab_io.users import Credentials
+from tanklab_testing.stack import Stack
 
 pytestmark = pytest.mark.process
 
@@ -51,39 +51,12 @@ class Plc:
 
 @pytest.fixture(scope="module")
 def plc(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plc]:
-    port = free_port()
     audit_dir = tmp_path_factory.mktemp("audit")
-    nowhere = f"opc.tcp://127.0.0.1:{free_port()}/tanklab/plant"  # no plant: logins only
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "tankctl",
-            "plc",
-            "--config",
-            CONFIG,
-            "--port",
-            str(port),
-            "--plant-url",
-            nowhere,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        cwd=ROOT,
-        env=dict(os.environ, TANKLAB_AUDIT_DIR=str(audit_dir)),
-        start_new_session=True,
-    )
-    assert proc.stdout is not None
-    ready, _, _ = select.select([proc.stdout], [], [], 30)
-    if not ready or not proc.stdout.readline():
-        proc.kill()
-        proc.wait()
-        raise AssertionError("tankctl plc did not serve within 30 s")
-    try:
-        yield Plc(f"opc.tcp://127.0.0.1:{port}/tanklab/plc", audit_dir / "plc.log")
-    finally:
-        stop_process(proc)
+    # The PLC alone, from the test-support Stack: its plant URL (the stack's base port) has no
+    # plant behind it; logins only.
+    stack = Stack(Path(CONFIG), free_base_port(), env=dict(os.environ, TANKLAB_AUDIT_DIR=str(audit_dir)))
+    with stack.serving(("plc",)):
+        yield Plc(stack.plc_url, audit_dir / "plc.log")
 
 
 @dataclass

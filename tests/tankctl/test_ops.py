@@ -16,7 +16,6 @@ import asyncio
 import json
 import os
 import re
-import select
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -28,7 +27,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, stop_process, wait_until
+from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, wait_until
 from tankctl.ops import (
     TIERS,
     SiteMismatchError,
@@ -44,6 +43,7 @@ from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
 from tanklab.tags import Tier
 from tanklab_io.ua import resolve
+from tanklab_testing.stack import Stack
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
 TWO_TANK = "configs/two_tank_interacting.yaml"
@@ -61,50 +61,14 @@ P1_MAX = 1.2e-4
 # --------------------------------------------------------------------------------------------
 
 
-def _start(*args: str, deadline_s: float = 30.0) -> subprocess.Popen[str]:
-    """``python -m tankctl ARGS`` in its own session; returns once it printed its banner."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tankctl", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        cwd=ROOT,
-        start_new_session=True,
-    )
-    assert proc.stdout is not None
-    ready, _, _ = select.select([proc.stdout], [], [], deadline_s)
-    banner = proc.stdout.readline() if ready else ""
-    if not banner:
-        proc.kill()
-        proc.wait()
-        raise AssertionError(f"tankctl {' '.join(args)} did not serve within {deadline_s} s")
-    return proc
-
-
-@dataclass
-class Stack:
-    base: int
-
-    def url(self, tier: str) -> str:
-        offset = {t: k for k, t in enumerate(TIERS)}[tier]
-        return f"opc.tcp://127.0.0.1:{self.base + offset}/tanklab/{tier}"
-
-
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
-    base = free_base_port()
-    s = Stack(base)
-    state = str(tmp_path_factory.mktemp("plant") / "plant.json")
-    procs: list[subprocess.Popen[str]] = []
-    try:
-        common = ("--config", CONFIG, "--speed", SPEED)
-        procs.append(_start("plant", *common, "--port", str(base), "--state-file", state))
-        procs.append(_start("plc", *common, "--port", str(base + 1), "--plant-url", s.url("plant")))
-        procs.append(_start("supervisor", *common, "--port", str(base + 2), "--plc-url", s.url("plc")))
+    """The test-support :class:`Stack`, all three tiers, serving for the module's synchronous
+    tests from an event loop of its own thread (stopped on every path)."""
+    state = tmp_path_factory.mktemp("plant") / "plant.json"
+    s = Stack(Path(CONFIG), free_base_port(), speed=float(SPEED), state_file=state)
+    with s.serving():
         yield s
-    finally:
-        for p in reversed(procs):
-            stop_process(p)
 
 
 # --------------------------------------------------------------------------------------------

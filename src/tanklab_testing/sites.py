@@ -1,0 +1,49 @@
+"""The default site config (Energies, three tanks) as tests and benchmarks run it.
+
+:func:`site_config` writes it for one run, optionally with a retentive-memory file and the
+tanks at the operating point with the equilibrium pump flows, so that the loops regulate from
+the first scan instead of filling empty tanks.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from plant_sim.linearize import operating_point
+from plant_sim.models import TankNetwork, default_inputs
+from tanklab.config import load_site
+from tanklab.tags import plc_tags
+from tanklab_testing.procs import ROOT
+
+HOST = "127.0.0.1"
+"""Every test and benchmark process serves on loopback."""
+ENERGIES = ROOT / "configs" / "three_tank_energies_sim.yaml"
+SITE = load_site(ENERGIES)
+PLC_TAGS = plc_tags(SITE)
+TIERS = ("plant", "plc", "supervisor")
+"""The tiers in port order: ``--base-port N`` puts tier k on N + k."""
+
+
+def tier_url(base: int, tier: str, host: str = HOST) -> str:
+    """The endpoint of ``tier`` in a stack on ``base`` (plant on base, PLC on base + 1, ...)."""
+    return f"opc.tcp://{host}:{base + TIERS.index(tier)}/tanklab/{tier}"
+
+
+def site_config(path: Path, *, retain: Path | None = None, at_operating_point: bool = False) -> Path:
+    """The default config written to ``path``, optionally with a retentive-memory file and the
+    tanks starting at the operating point with the equilibrium pump flows (so the loops start
+    settled instead of filling empty tanks)."""
+    data = yaml.safe_load(ENERGIES.read_text(encoding="utf-8"))
+    if retain is not None:
+        data["plc"]["retain_file"] = str(retain)
+    if at_operating_point:
+        net = TankNetwork.from_config(SITE.plant)
+        op = operating_point(net, SITE.plant, default_inputs(net, SITE.plant))
+        for tank, level in zip(data["plant"]["tanks"], op.equilibrium_levels_m, strict=True):
+            tank["initial_level_m"] = float(level)
+        for pump, command in zip(data["plant"]["pumps"], op.commands, strict=True):
+            pump["initial_command"] = float(command)
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return path
