@@ -334,8 +334,11 @@ def test_slack_penalty_is_exact_when_the_hard_problem_is_feasible() -> None:
 
 
 def test_exhausted_iteration_budget_returns_the_looser_solution_as_inaccurate() -> None:
-    """Default budget on the slow case above: the first rung's (1e-4) solution is used, flagged."""
-    ctrl = MpcController(MODEL, paper_config(horizon=20, z_max=0.42, du_min=-1e-5, du_max=1e-5))
+    """Default budget on the slow case above: the first rung's (1e-4) solution is used, flagged
+    (OSQP's ladder: the backend with a tolerance and a budget that runs out)."""
+    ctrl = MpcController(
+        MODEL, paper_config(horizon=20, z_max=0.42, du_min=-1e-5, du_max=1e-5, solver="osqp")
+    )
     res = ctrl.plan(H_OP, [0.47, 0.23], Q_OP)
     assert res.status == MpcStatus.INACCURATE and res.inaccurate == 1 and res.failures == 0
     assert res.iterations == ctrl.config.max_iter

@@ -134,3 +134,25 @@ def test_the_controller_refuses_non_finite_step_inputs_naming_them() -> None:
             ctrl.step(bad_y, bad_r, bad_u)
     after = ctrl.estimator.estimate
     assert prior is not None and after is not None and np.array_equal(prior.x, after.x)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    dx=st.lists(st.floats(-5e-2, 5e-2), min_size=3, max_size=3),
+    r=st.lists(st.floats(0.0, 0.63), min_size=2, max_size=2),
+    u_prev=st.lists(st.floats(-2e-5, 1.4e-4), min_size=2, max_size=2),
+    eta=st.lists(st.floats(-2e-5, 2e-5), min_size=2, max_size=2),
+    first_move_limited=st.booleans(),
+)
+def test_the_one_product_vectors_equal_the_qp_vectors_of_a_tiled_reference(
+    dx: list[float], r: list[float], u_prev: list[float], eta: list[float], first_move_limited: bool
+) -> None:
+    """A constant reference takes q, l, u as one product (the usual step): the same vectors as the
+    step-by-step construction of a preview that repeats r, to rounding (u(-1) outside the box too)."""
+    ctrl = _controller(first_move_rate_limited=first_move_limited, R=1e6)
+    dx0, r_, up, eta_ = np.array(dx), np.array(r), np.array(u_prev), np.array(eta)
+    x0 = X_OP + dx0
+    fast = ctrl.plan(x0, r_, up, eta_)
+    slow = MpcController(ctrl.model, ctrl.config).plan(x0, np.tile(r_, (ctrl.horizon, 1)), up, eta_)
+    assert np.max(np.abs(fast.planned_u - slow.planned_u)) <= 1e-9 * U_RANGE
+    assert fast.objective == pytest.approx(slow.objective, rel=1e-9, abs=1e-15)

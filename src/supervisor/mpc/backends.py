@@ -62,9 +62,6 @@ DAQP_STATUS = {
     -6: "initial point infeasible",
 }
 
-#: daqp's stand-in for an infinite bound (its C code treats |b| >= 1e30 as absent).
-_DAQP_INF = 1e30
-
 
 @dataclass(frozen=True)
 class QpSolution:
@@ -171,6 +168,9 @@ class DaqpBackend:
         # entry at index nc), then the general rows of A
         self._up_index = np.concatenate([np.where(self._bound_row >= 0, self._bound_row, nc), self._general])
         self._n_rows = nc
+        # l and u with one extra, infinite entry each (the missing bounds), filled per step
+        self._ext_lo = np.full(nc + 1, -np.inf)
+        self._ext_up = np.full(nc + 1, np.inf)
         self._make(P, A, q, lo, up)
 
     def _make(
@@ -188,12 +188,11 @@ class DaqpBackend:
         self._A_general = A_general
 
     def _bounds(self, lo: FloatArray, up: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """daqp's (bupper, blower): the rows reordered, infinite bounds as +-1e30."""
-        bu = np.append(up, np.inf)[self._up_index]
-        bl = np.append(lo, -np.inf)[self._up_index]
-        np.minimum(bu, _DAQP_INF, out=bu)
-        np.maximum(bl, -_DAQP_INF, out=bl)
-        return bu, bl
+        """daqp's (bupper, blower): the rows reordered (daqp takes +-inf as an absent bound)."""
+        n = self._n_rows
+        self._ext_up[:n] = up
+        self._ext_lo[:n] = lo
+        return self._ext_up[self._up_index], self._ext_lo[self._up_index]
 
     def update_matrices(self, P: sp.csc_matrix, A: sp.csc_matrix, x_offset: FloatArray) -> None:
         # a re-linearisation changes H and A: a new setup (the hot start is a working set of

@@ -283,8 +283,14 @@ class MpcController:
     def _solve(self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray) -> MpcResult:
         """The step from the state estimate, disturbance, reference ((nz,) or (Np, nz)) and u(-1)."""
         qp = self._qp
-        r_abs = np.broadcast_to(r, (self._N, self._nz))
-        sol = self._backend.solve(*qp.qp_vectors(dx0, eta, r_abs, u_prev))
+        # a constant reference (the usual case, also as a preview that repeats one row) takes
+        # the vectors as one product; so the same QP data always gives the same plan
+        if r.ndim == 1:
+            sol = self._backend.solve(*qp.constant_r_vectors(dx0, eta, r, u_prev))
+        elif (r == r[0]).all():
+            sol = self._backend.solve(*qp.constant_r_vectors(dx0, eta, r[0], u_prev))
+        else:
+            sol = self._backend.solve(*qp.qp_vectors(dx0, eta, r, u_prev))
         solved_by: SolvedBy = self._backend.name
         if sol.x is not None and np.isfinite(sol.x).all():
             plan = qp.plan_of(sol.x)
@@ -306,7 +312,7 @@ class MpcController:
         if status != MpcStatus.HELD or self._plan is not None:
             self._plan = plan  # the last safe plan (a held u(-1) is not one)
         z_pred = qp.predict_z(dx0, eta, plan)
-        objective, violation = qp.objective(plan, z_pred, r_abs, u_prev, eta)
+        objective, violation = qp.objective(plan, z_pred, r, u_prev, eta)
         return self._make_result(plan, z_pred, status, sol, solved_by, dx0, eta, objective, violation)
 
     def _make_result(

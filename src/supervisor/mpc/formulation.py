@@ -105,6 +105,8 @@ from supervisor.mpc.model import (
     weight,
 )
 
+_ONE = np.ones(1)
+
 #: Horizon from which ``formulation="auto"`` uses the sparse QP (measured, docs/decisions/0027).
 SPARSE_FROM_HORIZON = 200
 
@@ -253,6 +255,7 @@ class QpFormulation:
         self.Bd = Bd
         self.set_model_matrices(model.A, model.B)
         self.set_vector_bases()
+        self.set_vector_map()
 
     def layout(self) -> None:
         """Offsets of the variable and constraint blocks, and the warm-start shift indices."""
@@ -467,12 +470,70 @@ class QpFormulation:
         self, dx0: FloatArray, eta: FloatArray, r_abs: FloatArray, u_prev: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """q, l, u of the scaled QP for deviation state dx0, disturbance eta, absolute r (N, nz), u(-1)."""
+        up_t = (u_prev - self.model.u_op) / self.su
+        return self._vectors(dx0, eta, r_abs, up_t, self._rate_base(up_t))
+
+    def _rate_base(self, up_t: FloatArray) -> FloatArray:
+        """u~(-1) for the first rate row: clipped so that [u(-1) + du_min, u(-1) + du_max] and
+        [u_min, u_max] intersect even if the applied u(-1) lies outside the input bounds (the
+        physical bounds win)."""
+        return np.minimum(np.maximum(up_t, self.umin_t - self.dmax_t), self.umax_t - self.dmin_t)
+
+    def constant_r_vectors(
+        self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """:meth:`qp_vectors` for a constant reference r (nz,) as one product with the affine map
+        of the step's data th = [dx0, eta, r, u(-1), u~(-1) clipped, 1] (equal to rounding; the
+        vectors are affine in th, :meth:`set_vector_map`)."""
+        up_t = (u_prev - self.model.u_op) / self.su
+        out = self.vector_map @ np.concatenate((dx0, eta, r, u_prev, self._rate_base(up_t), _ONE))
+        nv, nc = self.nv, self.nc
+        return out[:nv], out[nv : nv + nc], out[nv + nc :]
+
+    def set_vector_map(self) -> None:
+        """The affine map [q; l; u] = M th of :meth:`constant_r_vectors`, from :meth:`_vectors`
+        at a base point and one step per entry of th of the size of its range (so that the
+        differences carry no cancellation); rows infinite at the base are constant (+-inf)."""
+        n, ne, nz, m = self.n, self.n_eta, self.nz, self.m
+        w_per_eta = np.abs(self.Bd / self.sx[:, None]).max(axis=0, initial=0.0)
+        eta_step = 1.0 / np.where(w_per_eta > 0.0, w_per_eta, 1.0)
+        u_mid = 0.5 * (self.u_min + self.u_max)
+        base = np.concatenate(
+            [
+                np.zeros(n),
+                np.zeros(ne),
+                self.z_op,
+                u_mid,
+                self._rate_base((u_mid - self.model.u_op) / self.su),
+            ]
+        )
+        steps = np.concatenate([self.sx, eta_step, self.sz, 0.25 * self.su, np.full(m, 0.25)])
+        cut = np.cumsum([n, ne, nz, m])
+
+        def vectors(th: FloatArray) -> FloatArray:
+            dx0, eta, r, u_prev, up_eff = np.split(th, cut)
+            r_abs = np.broadcast_to(r, (self.N, nz))
+            up_t = (u_prev - self.model.u_op) / self.su
+            return np.concatenate(self._vectors(dx0, eta, r_abs, up_t, up_eff))
+
+        f0 = vectors(base)
+        finite = np.isfinite(f0)
+        J = np.zeros((f0.size, base.size))
+        for j, h in enumerate(steps):
+            th = base.copy()
+            th[j] += h
+            np.subtract(vectors(th), f0, out=J[:, j], where=finite)
+            J[:, j] /= h
+        self.vector_map = np.ascontiguousarray(np.column_stack([J, np.where(finite, f0 - J @ base, f0)]))
+
+    def _vectors(
+        self, dx0: FloatArray, eta: FloatArray, r_abs: FloatArray, up_t: FloatArray, up_eff: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """q, l, u from the scaled u~(-1) (the move cost) and its clipped value (the rate row)."""
         n, m, nz, N = self.n, self.m, self.nz, self.N
-        model = self.model
         x0t = dx0 / self.sx
         wt = self.scaled_w(eta)
         rt = ((r_abs - self.z_op) / self.sz).reshape(-1)
-        up_t = (u_prev - model.u_op) / self.su
         ns = N * nz if self.has_z_rows else 0
         q = self.q_base.copy()
         lo = self.l_base.copy()
@@ -496,9 +557,6 @@ class QpFormulation:
             dyn[0] += self.At @ x0t
             up[self.row_dyn : self.row_dyn + N * n] = dyn.reshape(-1)
         if self.rate_rows and self.config.first_move_rate_limited:
-            # keep [u(-1) + du_min, u(-1) + du_max] and [u_min, u_max] intersecting even if the
-            # applied u(-1) lies outside the input bounds (the physical bounds win)
-            up_eff = np.minimum(np.maximum(up_t, self.umin_t - self.dmax_t), self.umax_t - self.dmin_t)
             lo[self.row_rate : self.row_rate + m] += up_eff
             up[self.row_rate : self.row_rate + m] += up_eff
         return q, lo, up
