@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from supervisor.estimator import AugmentedKalmanFilter
-from supervisor.mpc import MpcConfig, MpcController, MpcModel
+from supervisor.mpc import MpcConfig, MpcController, MpcModel, MpcResult
 
 U_RANGE = 1.2e-4
 X_OP = np.array([0.4, 0.2, 0.3])
@@ -156,3 +156,26 @@ def test_the_one_product_vectors_equal_the_qp_vectors_of_a_tiled_reference(
     slow = MpcController(ctrl.model, ctrl.config).plan(x0, np.tile(r_, (ctrl.horizon, 1)), up, eta_)
     assert np.max(np.abs(fast.planned_u - slow.planned_u)) <= 1e-9 * U_RANGE
     assert fast.objective == pytest.approx(slow.objective, rel=1e-9, abs=1e-15)
+
+
+def _si_cost(res: MpcResult, r: np.ndarray, u_prev: np.ndarray) -> float:
+    """The SI objective written out for :func:`_controller`'s weights (Qz = 1, S = 1e8, R = 0;
+    output bounds not reached): tracking plus moves."""
+    plan, z = res.planned_u, res.predicted_z
+    du = np.diff(np.vstack([u_prev, plan]), axis=0)
+    return 0.5 * float(np.sum((z - r) ** 2)) + 0.5 * 1e8 * float(np.sum(du**2))
+
+
+def test_the_cost_read_later_is_the_solved_models_and_ignores_later_changes_to_the_inputs() -> None:
+    ctrl = _controller()
+    r = np.array([0.42, 0.21])
+    u_prev = U_OP.copy()
+    res = ctrl.plan(X_OP + np.array([0.01, -0.01, 0.0]), r, u_prev)
+    expected = _si_cost(res, r.copy(), u_prev.copy())
+    assert res.max_output_violation == 0.0
+    # the caller reuses its buffers and the controller re-linearises before the cost is read
+    r[:] = 0.1
+    u_prev[:] = 0.0
+    model = ctrl.model
+    ctrl.update_model(model.A * 0.99, model.B * 1.1)
+    assert res.objective == pytest.approx(expected, rel=1e-9)

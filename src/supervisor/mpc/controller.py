@@ -312,8 +312,7 @@ class MpcController:
         if status != MpcStatus.HELD or self._plan is not None:
             self._plan = plan  # the last safe plan (a held u(-1) is not one)
         z_pred = qp.predict_z(dx0, eta, plan)
-        objective, violation = qp.objective(plan, z_pred, r, u_prev, eta)
-        return self._make_result(plan, z_pred, status, sol, solved_by, dx0, eta, objective, violation)
+        return self._make_result(plan, z_pred, status, sol, solved_by, dx0, eta, r, u_prev)
 
     def _make_result(
         self,
@@ -324,11 +323,12 @@ class MpcController:
         solved_by: SolvedBy,
         dx0: FloatArray,
         eta: FloatArray,
-        objective: float,
-        violation: float,
+        r: FloatArray,
+        u_prev: FloatArray,
     ) -> MpcResult:
         """The step's result. ``plan`` (also kept as the last plan), ``z_pred`` and ``eta`` are
-        this step's own arrays, handed out read-only."""
+        this step's own arrays, handed out read-only; r and u(-1) are the caller's, so copied
+        (the cost is evaluated from them when first read)."""
         planned = readonly(plan)
         return MpcResult(
             u=planned[0],
@@ -340,12 +340,13 @@ class MpcController:
             predicted_z=readonly(z_pred),
             disturbance=readonly(eta),
             state=readonly(self._model.x_op + dx0),
-            objective=objective,
-            max_output_violation=violation,
             failures=self._failures,
             consecutive_failures=self._consecutive,
             inaccurate=self._inaccurate,
             solved_by=solved_by,
+            cost=self._qp.cost,
+            reference=r.copy(),
+            u_prev=u_prev.copy(),
         )
 
     def project(self, plan: FloatArray, u_prev: FloatArray) -> FloatArray:

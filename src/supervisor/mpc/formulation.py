@@ -95,6 +95,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from supervisor.mpc.cost import PlanCost
 from supervisor.mpc.model import (
     BoolArray,
     FloatArray,
@@ -254,6 +255,26 @@ class QpFormulation:
         self.model = model
         self.Bd = Bd
         self.set_model_matrices(model.A, model.B)
+        self.cost = PlanCost(
+            Lq=self.Lq,
+            Ls=self.Ls,
+            Lr=self.Lr,
+            use_R=self.use_R,
+            steady_state_target=self.config.input_target != "operating_point",
+            target_pinv=self.target_pinv,
+            n=self.n,
+            Bd=Bd,
+            sx=self.sx,
+            u_op=model.u_op,
+            su=self.su,
+            z_op=model.Cz @ model.x_op,
+            sz=self.sz,
+            z_min=self.z_min,
+            z_max=self.z_max,
+            has_z_rows=self.has_z_rows,
+            half_rho_q=self.half_rho_q_si,
+            rho_l=self.rho_l_si,
+        )
         self.set_vector_bases()
         self.set_vector_map()
 
@@ -423,14 +444,11 @@ class QpFormulation:
         return P, Pmask, Aqp, Amask
 
     def scaled_w(self, eta: FloatArray) -> FloatArray:
-        return (self.Bd @ eta) / self.sx
+        return self.cost.scaled_w(eta)
 
     def u_target(self, w_t: FloatArray, r_t_last: FloatArray) -> FloatArray:
         """Scaled u_ss for the R term."""
-        if not self.use_R or self.config.input_target == "operating_point":
-            return np.zeros(self.m)
-        sol = self.target_pinv @ np.concatenate([w_t, r_t_last])
-        return sol[self.n :]
+        return self.cost.u_target(w_t, r_t_last)
 
     def set_vector_bases(self) -> None:
         """The parts of q, l and u that do not change from step to step (operating point fixed)."""
@@ -581,35 +599,3 @@ class QpFormulation:
     def scaled_z(self, dx0: FloatArray, eta: FloatArray, u_t: FloatArray) -> FloatArray:
         """z~(1..Np) stacked, of dx0 [m], eta and U~ (vectors, or matrices column by column)."""
         return self.Zx @ dx0 + self.Zeta @ eta + self.Gam_z @ u_t
-
-    def objective(
-        self, plan: FloatArray, z: FloatArray, r: FloatArray, u_prev: FloatArray, eta: FloatArray
-    ) -> tuple[float, float]:
-        """SI cost of the plan (constants included) and its largest output-bound violation [m];
-        r is (nz,) or (Np, nz)."""
-        w = self.residual_roots(plan, z, r, u_prev, eta)
-        slack, violation = self.slack(z)
-        return 0.5 * float(np.vdot(w, w)) + slack, violation
-
-    def residual_roots(
-        self, plan: FloatArray, z: FloatArray, r: FloatArray, u_prev: FloatArray, eta: FloatArray
-    ) -> FloatArray:
-        """w with 1/2 |w|^2 the plan's tracking, move and input cost (SI): z - r, the moves and
-        u - u_ss, each times a square root L of its weight (L' L = Qz, S, R)."""
-        du = np.empty_like(plan)
-        du[0] = plan[0] - u_prev
-        np.subtract(plan[1:], plan[:-1], out=du[1:])
-        parts = [((z - r) @ self.Lq.T).reshape(-1), (du @ self.Ls.T).reshape(-1)]
-        if self.use_R:
-            model = self.model
-            rt_last = ((r if r.ndim == 1 else r[-1]) - self.z_op) / self.sz
-            uss = model.u_op + self.u_target(self.scaled_w(eta), rt_last) * self.su
-            parts.append(((plan - uss) @ self.Lr.T).reshape(-1))
-        return np.concatenate(parts)
-
-    def slack(self, z: FloatArray) -> tuple[float, float]:
-        """The slack cost (SI) of the output-bound violations of z and the largest one [m]."""
-        if not self.has_z_rows:
-            return 0.0, 0.0
-        viol = np.maximum(np.maximum(z - self.z_max, self.z_min - z), 0.0)
-        return float(np.vdot(viol, self.half_rho_q_si * viol + self.rho_l_si)), float(viol.max())

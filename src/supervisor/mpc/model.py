@@ -10,13 +10,17 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from tanklab.enums import MpcStatus
+
+if TYPE_CHECKING:
+    from supervisor.mpc.cost import PlanCost
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -323,9 +327,11 @@ class MpcResult:
     state : ndarray, shape (n,)
         State estimate x(k|k) used [m].
     objective : float
-        SI cost of the returned plan (all terms, constants included).
+        SI cost of the returned plan (all terms, constants included). Evaluated on first read
+        (no caller in the control loop reads it), with the model the step was solved on.
     max_output_violation : float
-        Largest predicted violation of the output bounds over the plan [m] (0 if none).
+        Largest predicted violation of the output bounds over the plan [m] (0 if none);
+        evaluated with ``objective``.
     failures : int
         Total HELD steps since construction or :meth:`MpcController.reset`.
     consecutive_failures : int
@@ -346,9 +352,29 @@ class MpcResult:
     predicted_z: FloatArray
     disturbance: FloatArray
     state: FloatArray
-    objective: float
-    max_output_violation: float
     failures: int
     consecutive_failures: int
     inaccurate: int
     solved_by: SolvedBy = "daqp"
+    #: the cost terms and the step's reference (nz,) or (Np, nz) and u(-1) (m,), this step's
+    #: own copies: what ``objective`` is evaluated from
+    cost: PlanCost | None = field(default=None, repr=False, compare=False)
+    reference: FloatArray | None = field(default=None, repr=False, compare=False)
+    u_prev: FloatArray | None = field(default=None, repr=False, compare=False)
+
+    @cached_property
+    def _cost_and_violation(self) -> tuple[float, float]:
+        if self.cost is None or self.reference is None or self.u_prev is None:
+            return math.nan, math.nan
+        plan, z = self.planned_u, self.predicted_z
+        return self.cost.evaluate(plan, z, self.reference, self.u_prev, self.disturbance)
+
+    @property
+    def objective(self) -> float:
+        """SI cost of the returned plan (class docstring); NaN for a result built without ``cost``."""
+        return self._cost_and_violation[0]
+
+    @property
+    def max_output_violation(self) -> float:
+        """Largest predicted output-bound violation [m] (class docstring)."""
+        return self._cost_and_violation[1]
