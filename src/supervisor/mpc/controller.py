@@ -357,22 +357,17 @@ class MpcController:
         the input box, as in the QP) when ``first_move_rate_limited``; corrections are at solver
         tolerance except on the held path. A plan that rides a rate bound breaks it by rounding
         errors, so the sequential pass (in Python floats: a few dozen numbers) starts at the first
-        move that breaks one.
+        move that breaks one, and skips ahead again after a move it leaves unchanged.
         """
         qp = self._qp
         umin, umax = qp.u_min, qp.u_max
         out = np.minimum(np.maximum(plan, umin), umax)  # np.clip's result, less call overhead
         if qp.has_rate_rows:
-            dmin, dmax = qp.du_min, qp.du_max
             if self._config.first_move_rate_limited:
                 out[0] = self._first_move(out[0].tolist(), u_prev.tolist())
-            d = out[1:] - out[:-1]
-            if qp.symmetric_rates:  # |d| <= du_max is d >= du_min and d <= du_max, exactly
-                broken = np.abs(d) > dmax
-            else:
-                broken = (d < dmin) | (d > dmax)
-            if broken.any():
-                out = self._project_moves(out, int(broken.any(axis=1).argmax()) + 1)
+            first = self._first_broken(out)
+            if first:
+                out = self._project_moves(out, first)
         return out
 
     def _first_move(self, u0: list[float], u_prev: list[float]) -> list[float]:
@@ -383,11 +378,34 @@ class MpcController:
         base = [min(max(v, lo_prev[j]), hi_prev[j]) for j, v in enumerate(u_prev)]
         return self._clamp_move(u0, base)
 
+    def _first_broken(self, plan: FloatArray) -> int:
+        """Index of the first move of ``plan`` (rows of moves, the first one excluded) that breaks
+        a rate bound relative to the row before it; 0 if none does."""
+        qp = self._qp
+        d = plan[1:] - plan[:-1]
+        if qp.symmetric_rates:  # |d| <= du_max is d >= du_min and d <= du_max, exactly
+            broken = np.abs(d) > qp.du_max
+        else:
+            broken = (d < qp.du_min) | (d > qp.du_max)
+        rows = broken.any(axis=1)
+        return int(rows.argmax()) + 1 if rows.any() else 0
+
     def _project_moves(self, plan: FloatArray, first: int) -> FloatArray:
-        """Clip moves ``first``..Np-1 in turn to the rate window of the move before."""
+        """Clip moves ``first``..Np-1 in turn to the rate window of the move before. A move the
+        clip leaves unchanged makes the rest of the plan its own again, so the pass jumps to the
+        next move that breaks a bound (the same result as clipping every move)."""
         rows = plan.tolist()
-        for k in range(first, len(rows)):
-            rows[k] = self._clamp_move(rows[k], rows[k - 1])
+        k, n = first, len(rows)
+        while k < n:
+            moved = self._clamp_move(rows[k], rows[k - 1])
+            if moved == rows[k]:
+                ahead = self._first_broken(plan[k:])
+                if not ahead:
+                    break
+                k += ahead
+                continue
+            rows[k] = moved
+            k += 1
         return np.array(rows)
 
     def _clamp_move(self, move: list[float], prev: list[float]) -> list[float]:
