@@ -9,8 +9,8 @@ committed move leads to, supervisor.timing); the benchmark, in this order and wi
 sample:
 
 1. times the MPC step (``time.perf_counter`` around ``correct`` plus around ``plan``: filter,
-   QP update, the solver, projection, prediction, objective) and keeps the solver's own time
-   (``MpcResult.solve_time_s``) and iteration count;
+   QP update, the solver, projection, prediction; the objective is evaluated only when read)
+   and keeps the solver's own time (``MpcResult.solve_time_s``) and iteration count;
 2. gives the same (x0, r, u_prev, eta) to a second ``MpcController``, the same QP form on the
    other backend (daqp <-> OSQP with its tolerance ladder): it solves the same QP;
 3. gives the QP that step solved (start state ``MpcResult.state``, disturbance

@@ -105,7 +105,7 @@ def _median_note(res: HorizonResult) -> str:
         f"{path['daqp']} were solved by daqp (hot-started from the previous working set), "
         f"{path['osqp']} by OSQP, {path['held']} held (median solver time {fmt(o.median)} ms); the "
         f"rest of the {fmt(s.median)} ms is the filter, the input checks, the QP's vectors, the "
-        "projection and building the result"
+        "projection, the prediction and building the result"
     )
 
 
@@ -346,7 +346,8 @@ def _mpc_section(rep: Report) -> list[str]:
         "",
         "Closed loop with nothing else timed in the process. *step* = the whole `step(y, r, u_prev)` "
         "call (Kalman filter, input checks, the QP's vectors, the solver, projection, "
-        "prediction, objective); *solver* = `MpcResult.solve_time_s` (daqp's solve time, or OSQP's "
+        "prediction; the objective is evaluated only when read); *solver* = "
+        "`MpcResult.solve_time_s` (daqp's solve time, or OSQP's "
         "own update + solve + polish time over the rungs); iterations are the solver's.",
         "",
     ]

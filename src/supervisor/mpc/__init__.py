@@ -5,6 +5,8 @@ The package, one job per module:
 - :mod:`~supervisor.mpc.model`: the linear model, the tuning and the result of one step, validated;
 - :mod:`~supervisor.mpc.formulation`: the optimal control problem, its scaling and the scaled QP
   (condensed or sparse), built once per model, with the vectors that change every step;
+- :mod:`~supervisor.mpc.cost`: the SI cost of a plan and its output-bound violation (one snapshot
+  per model; a result evaluates it when first read);
 - :mod:`~supervisor.mpc.backends`: the QP solvers behind one interface (``QpBackend``): daqp, a
   dual active-set solver hot-started from the previous working set (default on the condensed
   QP), and OSQP with its warm start and tolerance ladder (default on the sparse QP);
