@@ -345,8 +345,8 @@ class MpcController:
             inaccurate=self._inaccurate,
             solved_by=solved_by,
             cost=self._qp.cost,
-            reference=r.copy(),
-            u_prev=u_prev.copy(),
+            reference=readonly(r.copy()),
+            u_prev=readonly(u_prev.copy()),
         )
 
     def project(self, plan: FloatArray, u_prev: FloatArray) -> FloatArray:

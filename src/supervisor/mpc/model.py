@@ -356,14 +356,16 @@ class MpcResult:
     consecutive_failures: int
     inaccurate: int
     solved_by: SolvedBy = "daqp"
-    #: the cost terms and the step's reference (nz,) or (Np, nz) and u(-1) (m,), this step's
-    #: own copies: what ``objective`` is evaluated from
+    #: the cost terms and the step's reference (nz,) or (Np, nz) [m] and u(-1) (m,) [m^3/s],
+    #: this step's own read-only copies: what ``objective`` is evaluated from
     cost: PlanCost | None = field(default=None, repr=False, compare=False)
     reference: FloatArray | None = field(default=None, repr=False, compare=False)
     u_prev: FloatArray | None = field(default=None, repr=False, compare=False)
 
     @cached_property
     def _cost_and_violation(self) -> tuple[float, float]:
+        """(objective, max_output_violation), evaluated once on first read: the control loop
+        never reads them, so the step does not pay for them (decision 0027's follow-up)."""
         if self.cost is None or self.reference is None or self.u_prev is None:
             return math.nan, math.nan
         plan, z = self.planned_u, self.predicted_z
