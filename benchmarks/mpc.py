@@ -9,10 +9,10 @@ committed move leads to, supervisor.timing); the benchmark, in this order and wi
 sample:
 
 1. times the MPC step (``time.perf_counter`` around ``correct`` plus around ``plan``: filter,
-   QP update, OSQP, projection, prediction, objective) and keeps OSQP's own time
-   (``MpcResult.solve_time_s``) and iteration count;
-2. gives the same (x0, r, u_prev, eta) to a second ``MpcController`` with the other QP form
-   (condensed <-> sparse): it solves the same QP;
+   QP update, the solver, projection, prediction; the objective is evaluated only when read)
+   and keeps the solver's own time (``MpcResult.solve_time_s``) and iteration count;
+2. gives the same (x0, r, u_prev, eta) to a second ``MpcController``, the same QP form on the
+   other backend (daqp <-> OSQP with its tolerance ladder): it solves the same QP;
 3. gives the QP that step solved (start state ``MpcResult.state``, disturbance
    ``MpcResult.disturbance``, r, u_prev) to the comparators of :mod:`benchmarks.comparators`:
    cvxpy + OSQP at eps 1e-4 with polish (the controller's first tolerance rung), cvxpy + OSQP
@@ -57,7 +57,7 @@ DOMPC = "dompc"
 
 LABELS = {
     OURS: "tanklab MpcController",
-    OURS_ALT: "tanklab MpcController, other QP form",
+    OURS_ALT: "tanklab MpcController, other backend (daqp <-> OSQP)",
     CVXPY_OSQP: "cvxpy + OSQP, eps 1e-4 + polish",
     CVXPY_OSQP_TIGHT: "cvxpy + OSQP, eps 1e-6 + polish",
     CVXPY_DEFAULT: "cvxpy, default solver and settings",
@@ -74,13 +74,15 @@ class Series:
     """The per-step record of one solver on one horizon."""
 
     wall_s: list[float] = field(default_factory=list)
+    cpu_s: list[float] = field(default_factory=list)
+    """The process's CPU time over the same calls (ours only): what the step costs on a machine
+    whose other work preempts it (wall p99 - CPU p99 is time spent waiting for a core)."""
     solver_s: list[float] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     status: Counter[str] = field(default_factory=Counter)
     path: Counter[str] = field(default_factory=Counter)
-    """How the controller's steps were solved (``MpcResult.solved_by``): ``law`` (the previous
-    active set's affine law), ``previous`` (the previous active set, on its factorisation),
-    ``corrections`` (active-set corrections), ``osqp`` or ``held``."""
+    """How the controller's steps were solved (``MpcResult.solved_by``): ``daqp``, ``osqp`` or
+    ``held``."""
     du0: list[float] = field(default_factory=list)
     """|u0 - u0 of the controller| / input range, largest over the inputs."""
     detail: str = ""
@@ -113,8 +115,8 @@ class HorizonResult:
 
 
 def solve_path(res: MpcResult) -> str:
-    """``law``, ``previous``, ``corrections``, ``osqp`` or ``held``: how :class:`MpcController`
-    found this step's plan (``MpcResult.solved_by``)."""
+    """``daqp``, ``osqp`` or ``held``: how :class:`MpcController` found this step's plan
+    (``MpcResult.solved_by``)."""
     return res.solved_by
 
 
@@ -144,11 +146,11 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
     sim = CoSimulation(site, supervisor_mode="MPC")
     assert sim.supervisor is not None
     mpc = sim.supervisor.mpc
-    alt_form: Literal["condensed", "sparse"] = "condensed" if mpc.formulation == "sparse" else "sparse"
+    alt_solver: Literal["daqp", "osqp"] = "osqp" if mpc.solver == "daqp" else "daqp"
+    alt_form = "condensed" if alt_solver == "daqp" else mpc.formulation  # daqp is dense
+    alt_config = replace(mpc.config, formulation=alt_form, solver=alt_solver)
     series: dict[str, Series] = {OURS: Series()}
-    alt = _build(
-        OURS_ALT, lambda: MpcController(mpc.model, replace(mpc.config, formulation=alt_form)), series
-    )
+    alt = _build(OURS_ALT, lambda: MpcController(mpc.model, alt_config), series)
     qp = ScaledQp.of(mpc)
     u_range = float(np.max(qp.su))
     others: dict[str, _Solver] = {}
@@ -168,19 +170,24 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
     def du0(u: np.ndarray, ref: np.ndarray) -> float:
         return float(np.max(np.abs(np.asarray(u) - ref)) / u_range)
 
+    correct_cpu = [0.0]
+
     def timed_correct(y: ArrayLike, x: ArrayLike, d: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = original_correct(y, x, d)
         correct_wall[0] = time.perf_counter() - t0
+        correct_cpu[0] = time.process_time() - c0
         return out
 
     def timed_step(x: ArrayLike, r: ArrayLike, u_prev: ArrayLike, disturbance: ArrayLike) -> MpcResult:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = original(x, r, u_prev, disturbance)
         wall = time.perf_counter() - t0 + correct_wall[0]
-        correct_wall[0] = 0.0
+        cpu = time.process_time() - c0 + correct_cpu[0]
+        correct_wall[0] = correct_cpu[0] = 0.0
         s = series[OURS]
         s.wall_s.append(wall)
+        s.cpu_s.append(cpu)
         s.solver_s.append(res.solve_time_s)
         s.iterations.append(res.iterations)
         s.status[res.status.name] += 1
@@ -228,8 +235,8 @@ def run_horizon(horizon: int, duration_s: float, comparators: Sequence[str]) -> 
             series[name].detail = f"solver used: {getattr(others[name], 'solver_name', '?')}"
     return HorizonResult(
         horizon=horizon,
-        formulation=mpc.formulation,
-        alt_formulation=alt_form,
+        formulation=f"{mpc.formulation}, {mpc.solver}",
+        alt_formulation=f"{alt_form}, {alt_solver}",
         qp_size=mpc.qp_size,
         alt_qp_size=alt.qp_size if alt is not None else (0, 0),
         steps=len(series[OURS].wall_s),

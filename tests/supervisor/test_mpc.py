@@ -34,7 +34,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from digest_models import three_tank_continuous, zoh
-from supervisor.mpc import SPARSE_FROM_HORIZON, MpcConfig, MpcController, MpcModel
+from supervisor.mpc import SPARSE_FROM_HORIZON, MpcConfig, MpcController, MpcModel, QpSolution
 from tanklab.enums import MpcStatus
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -334,8 +334,11 @@ def test_slack_penalty_is_exact_when_the_hard_problem_is_feasible() -> None:
 
 
 def test_exhausted_iteration_budget_returns_the_looser_solution_as_inaccurate() -> None:
-    """Default budget on the slow case above: the first rung's (1e-4) solution is used, flagged."""
-    ctrl = MpcController(MODEL, paper_config(horizon=20, z_max=0.42, du_min=-1e-5, du_max=1e-5))
+    """Default budget on the slow case above: the first rung's (1e-4) solution is used, flagged
+    (OSQP's ladder: the backend with a tolerance and a budget that runs out)."""
+    ctrl = MpcController(
+        MODEL, paper_config(horizon=20, z_max=0.42, du_min=-1e-5, du_max=1e-5, solver="osqp")
+    )
     res = ctrl.plan(H_OP, [0.47, 0.23], Q_OP)
     assert res.status == MpcStatus.INACCURATE and res.inaccurate == 1 and res.failures == 0
     assert res.iterations == ctrl.config.max_iter
@@ -398,18 +401,11 @@ def test_solver_failure_before_any_plan_holds_the_previous_input() -> None:
     assert res.failures == 2 and res.consecutive_failures == 2
 
 
-def _fake_solve(status: str, status_val: int, x: np.ndarray, y: np.ndarray) -> Any:
-    def solve(raise_error: bool | None = None) -> SimpleNamespace:
-        info = SimpleNamespace(
-            status=status,
-            status_val=status_val,
-            status_polish=0,
-            iter=7,
-            update_time=1e-6,
-            solve_time=2e-6,
-            polish_time=0.0,
-        )
-        return SimpleNamespace(x=x, y=y, info=info)
+def _fake_solve(status: str, x: np.ndarray | None) -> Any:
+    """A backend's ``solve`` that reports ``status`` with solution ``x`` (the failures to test)."""
+
+    def solve(q: np.ndarray, lo: np.ndarray, up: np.ndarray) -> QpSolution:
+        return QpSolution(x=x, accurate=x is not None, status=status, iterations=7, time_s=3e-6)
 
     return solve
 
@@ -422,19 +418,17 @@ def test_solver_failure_uses_the_shifted_last_plan_and_counts(
     r = [0.45, 0.2289]
     good = ctrl.plan(H_OP, r, Q_OP)
     assert good.status == MpcStatus.SOLVED
-    nv, nc = ctrl.qp_size
-    real_solve = ctrl._solver.solve
+    nv, _ = ctrl.qp_size
+    real_solve = ctrl.backend.solve
     # 1) the solver gives up (max iterations) -> shifted plan
-    monkeypatch.setattr(
-        ctrl._solver, "solve", _fake_solve("maximum iterations reached", 7, np.zeros(nv), np.zeros(nc))
-    )
+    monkeypatch.setattr(ctrl.backend, "solve", _fake_solve("maximum iterations reached", None))
     held = ctrl.plan(H_OP, r, good.u)
     assert held.status == MpcStatus.HELD
     assert np.array_equal(held.u, good.planned_u[1])
     assert np.array_equal(held.planned_u[:-1], good.planned_u[1:])
     assert held.failures == 1 and held.consecutive_failures == 1
     # 2) "solved" but with NaN in the solution -> also held, shifted once more
-    monkeypatch.setattr(ctrl._solver, "solve", _fake_solve("solved", 1, np.full(nv, np.nan), np.zeros(nc)))
+    monkeypatch.setattr(ctrl.backend, "solve", _fake_solve("solved", np.full(nv, np.nan)))
     held2 = ctrl.plan(H_OP, r, held.u)
     assert held2.status == MpcStatus.HELD
     assert np.array_equal(held2.u, good.planned_u[2])
@@ -446,7 +440,7 @@ def test_solver_failure_uses_the_shifted_last_plan_and_counts(
     held3 = ctrl.plan(H_OP, r, held2.u + 5e-6)
     assert np.all(np.abs(held3.u - (held2.u + 5e-6)) <= 1e-6 + 1e-18)
     # 4) recovery
-    monkeypatch.setattr(ctrl._solver, "solve", real_solve)
+    monkeypatch.setattr(ctrl.backend, "solve", real_solve)
     ok = ctrl.plan(H_OP, r, held3.u)
     assert ok.status == MpcStatus.SOLVED
     assert ok.failures == 3 and ok.consecutive_failures == 0
@@ -546,8 +540,9 @@ def test_warm_start_reduces_iterations(formulation: str) -> None:
     assert warm.status == cold.status == MpcStatus.SOLVED
     assert 0 < warm.iterations < cold.iterations
     assert np.all(np.abs(warm.u - cold.u) <= 1e-3 * RANGE_U)
-    # at a steady state (away from the operating point) the plan is to stay; with the exact
-    # active-set solves on (the default), the second sample does not need OSQP at all
+    # at a steady state (away from the operating point) the plan is to stay; the second sample
+    # starts from the first one's solution (daqp: its working set; OSQP: the shifted iterate)
+    # and needs far fewer iterations
     u_s = np.array([6.5e-5, 2.8e-5])
     x_s = MODEL.x_op + np.linalg.solve(np.eye(3) - MODEL.A, MODEL.B @ (u_s - MODEL.u_op))
     r_s = MODEL.Cz @ x_s
@@ -555,8 +550,10 @@ def test_warm_start_reduces_iterations(formulation: str) -> None:
     cold_s = fresh.plan(x_s, r_s, u_s)
     again = fresh.plan(x_s, r_s, u_s)
     assert np.allclose(cold_s.planned_u, u_s, rtol=0, atol=1e-6 * RANGE_U)
-    assert cold_s.iterations > 0 and again.iterations == 0 and again.solve_time_s == 0.0
-    assert np.allclose(again.planned_u, u_s, rtol=0, atol=1e-9 * RANGE_U)
+    assert cold_s.iterations > 0 and again.iterations <= cold_s.iterations // 10
+    # daqp's answer is exact on its active set; OSQP's polished one to about its tolerance
+    exact = 1e-9 if fresh.solver == "daqp" else 1e-6
+    assert np.allclose(again.planned_u, u_s, rtol=0, atol=exact * RANGE_U)
 
 
 @pytest.mark.parametrize("formulation", ["condensed", "sparse"])

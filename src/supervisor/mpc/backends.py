@@ -1,0 +1,367 @@
+r"""QP solvers for the MPC behind one small interface: daqp (dense dual active set) and OSQP (ADMM).
+
+Both solve the scaled QP of :mod:`supervisor.mpc.formulation` in OSQP's form::
+
+    min 1/2 v' P v + q' v   s.t.  l <= Aqp v <= u        (P given as its upper triangle)
+
+A backend is set up once per model (``setup``), gets new matrix values when the model is
+re-linearised (``update_matrices``, same sparsity pattern) and new vectors every step (``solve``).
+It keeps its own warm or hot start between steps: the controller never sees a solver's state.
+
+daqp (:class:`DaqpBackend`, the default on the condensed QP): a dual active-set method for small
+dense QPs, exact on its final active set (the optimum to rounding, no tolerance ladder). Rows of
+Aqp that are a unit vector on one variable (the input box u~ in [u~min, u~max] and eps~ >= 0)
+become daqp's simple bounds; the other rows are general constraints. The model object is set up
+once; each step updates f and the bounds and solves hot-started from the previous step's
+working set (near a steady state the set is unchanged and daqp only re-solves on it).
+
+OSQP (:class:`OsqpBackend`, the default on the sparse QP): warm-started from the previous primal
+and dual solution shifted by one sample. Tolerance ladder (decision 0009): with the papers' tuning
+the QP is nearly flat along "move timing" directions, so ADMM's residual test at a loose tolerance
+accepts first moves ~1 % of the input range off the optimum. Each step solves with eps_abs =
+eps_rel = 1e-4 and polishes (an exact solve on the identified active set: the optimum whenever it
+succeeds); only if the polish fails it continues the same iterates at 1e-5 and then 1e-6
+(``MpcConfig.tolerances``), within one iteration budget ``max_iter``. The last rung's solution is
+accepted polished or not; a looser rung's when a tighter one ran out of iterations, or OSQP's
+"solved inaccurate", is INACCURATE. OSQP's adaptive rho runs on an iteration count, so results
+are deterministic.
+
+The module is pure: no clock reads of its own (the times are the solvers' own reports), no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal, Protocol
+
+import daqp
+import numpy as np
+import osqp
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from supervisor.mpc.model import FloatArray
+
+BackendName = Literal["daqp", "osqp"]
+
+# OSQP status values (osqp.SolverStatus; the names are stable across 1.x).
+_OSQP_SOLVED = 1
+_OSQP_SOLVED_INACCURATE = 2
+
+#: daqp's exit flags (docs of daqp 0.11: > 0 success, < 0 failure) and the status strings
+#: reported for them (an exhausted budget worded as OSQP's, so both backends say it alike).
+DAQP_STATUS = {
+    1: "optimal",
+    2: "soft optimal",
+    -1: "infeasible",
+    -2: "cycling",
+    -3: "unbounded",
+    -4: "maximum iterations reached",
+    -5: "nonconvex",
+    -6: "initial point infeasible",
+}
+
+
+@dataclass(frozen=True)
+class QpSolution:
+    """What one solve produced (scaled QP variables).
+
+    Attributes
+    ----------
+    x : ndarray or None
+        The accepted primal solution v, (nv,), finite; None when there is none (the step holds).
+    accurate : bool
+        True: the optimum (daqp's exact solve, OSQP's polished or last-rung solution). False: a
+        usable but inexact solution (the controller reports INACCURATE).
+    status : str
+        The solver's own status string.
+    iterations : int
+        daqp's active-set iterations, or OSQP's ADMM iterations summed over the rungs.
+    time_s : float
+        The solver's reported time [s]: daqp's solve time, or OSQP's update + solve + polish.
+    """
+
+    x: FloatArray | None
+    accurate: bool
+    status: str
+    iterations: int
+    time_s: float
+
+
+class QpBackend(Protocol):
+    """A QP solver as the controller uses it (module docstring): set up once, solve per step."""
+
+    @property
+    def name(self) -> BackendName:
+        """``"daqp"`` or ``"osqp"`` (``MpcResult.solved_by``)."""
+        ...
+
+    def setup(
+        self, P: sp.csc_matrix, A: sp.csc_matrix, q: FloatArray, lo: FloatArray, up: FloatArray
+    ) -> None:
+        """Take the QP (P upper triangle, CSC) once; raise ValueError if the solver refuses it."""
+        ...
+
+    def update_matrices(self, P: sp.csc_matrix, A: sp.csc_matrix, x_offset: FloatArray) -> None:
+        """New values of P and A on the pattern given to ``setup``; ``x_offset`` is added to a
+        kept primal warm start (the plan moves in scaled units when u_op moves)."""
+        ...
+
+    def solve(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> QpSolution:
+        """Solve with this step's vectors, warm- or hot-started from the previous step."""
+        ...
+
+    def reset(self) -> None:
+        """Forget the warm or hot start (the next solve starts cold)."""
+        ...
+
+
+def _full_symmetric(P_upper: sp.csc_matrix) -> FloatArray:
+    """The dense symmetric matrix of an upper triangle."""
+    U = P_upper.toarray()
+    return np.ascontiguousarray(U + U.T - np.diag(np.diag(U)))
+
+
+def _simple_bounds(A: sp.csc_matrix) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(bound_row, general): for each variable j the first row of A that is the unit vector
+    e_j' in A's stored pattern (-1 if none), and the remaining rows in order."""
+    csr = A.tocsr()
+    counts = np.diff(csr.indptr)
+    bound_row = np.full(A.shape[1], -1, dtype=np.int64)
+    for row in np.flatnonzero(counts == 1):
+        j = int(csr.indices[csr.indptr[row]])
+        if csr.data[csr.indptr[row]] == 1.0 and bound_row[j] < 0:
+            bound_row[j] = row
+    used = np.zeros(A.shape[0], dtype=bool)
+    used[bound_row[bound_row >= 0]] = True
+    return bound_row, np.flatnonzero(~used).astype(np.int64)
+
+
+class DaqpBackend:
+    """daqp's hot-started model on the dense QP (module docstring).
+
+    Parameters
+    ----------
+    iter_limit : int
+        daqp's iteration budget per solve (``MpcConfig.max_iter``).
+    """
+
+    def __init__(self, iter_limit: int) -> None:
+        self._iter_limit = int(iter_limit)
+        self._model: Any = None
+        self._bound_row = np.zeros(0, dtype=np.int64)
+        self._general = np.zeros(0, dtype=np.int64)
+        self._up_index = np.zeros(0, dtype=np.int64)
+        self._n_rows = 0
+
+    @property
+    def name(self) -> BackendName:
+        return "daqp"
+
+    def setup(
+        self, P: sp.csc_matrix, A: sp.csc_matrix, q: FloatArray, lo: FloatArray, up: FloatArray
+    ) -> None:
+        self._bound_row, self._general = _simple_bounds(A)
+        nc = A.shape[0]
+        # daqp's rows: one simple bound per variable (a missing one is the extra, infinite
+        # entry at index nc), then the general rows of A
+        self._up_index = np.concatenate([np.where(self._bound_row >= 0, self._bound_row, nc), self._general])
+        self._n_rows = nc
+        # l and u with one extra, infinite entry each (the missing bounds), filled per step
+        self._ext_lo = np.full(nc + 1, -np.inf)
+        self._ext_up = np.full(nc + 1, np.inf)
+        self._make(P, A, q, lo, up)
+
+    def _make(
+        self, P: sp.csc_matrix, A: sp.csc_matrix, q: FloatArray, lo: FloatArray, up: FloatArray
+    ) -> None:
+        H = _full_symmetric(P)
+        A_general = np.ascontiguousarray(A.tocsr()[self._general].toarray())
+        bu, bl = self._bounds(lo, up)
+        model = daqp.Model()
+        flag, _ = model.setup(H, np.ascontiguousarray(q, dtype=np.float64), A_general, bu, bl)
+        if flag < 0:
+            raise ValueError(f"daqp setup failed: exit flag {flag} (is P positive definite?)")
+        model.settings = {"iter_limit": self._iter_limit}
+        self._model = model
+        self._A_general = A_general
+
+    def _bounds(self, lo: FloatArray, up: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """daqp's (bupper, blower): the rows reordered (daqp takes +-inf as an absent bound)."""
+        n = self._n_rows
+        self._ext_up[:n] = up
+        self._ext_lo[:n] = lo
+        return self._ext_up[self._up_index], self._ext_lo[self._up_index]
+
+    def update_matrices(self, P: sp.csc_matrix, A: sp.csc_matrix, x_offset: FloatArray) -> None:
+        # a re-linearisation changes H and A: a new setup (the hot start is a working set of
+        # the old QP, so it is not carried over)
+        del x_offset
+        zero = np.zeros(P.shape[0])
+        self._make(P, A, zero, np.full(self._n_rows, -np.inf), np.full(self._n_rows, np.inf))
+
+    def solve(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> QpSolution:
+        bu, bl = self._bounds(lo, up)
+        self._model.update(f=q, bupper=bu, blower=bl)
+        x, _, flag, info = self._model.solve()
+        status = DAQP_STATUS.get(int(flag), f"exit flag {int(flag)}")
+        iterations, time_s = int(info["iterations"]), float(info["solve_time"])
+        x = np.array(x, dtype=np.float64)
+        if flag > 0 and x.shape == (q.size,) and np.isfinite(x).all():
+            return QpSolution(x=x, accurate=True, status=status, iterations=iterations, time_s=time_s)
+        self.reset()  # a failed solve's working set is no start for the next one
+        return QpSolution(x=None, accurate=False, status=status, iterations=iterations, time_s=time_s)
+
+    def reset(self) -> None:
+        if self._model is not None:
+            # an explicit sense (all inactive) overrides the hot start
+            self._model.update(sense=np.zeros(len(self._up_index), dtype=np.int32))
+
+
+class OsqpBackend:
+    """OSQP with the shifted warm start and the tolerance ladder (module docstring).
+
+    Parameters
+    ----------
+    tolerances : tuple of float
+        eps_abs = eps_rel per rung, strictly decreasing (``MpcConfig.tolerances``).
+    polish : bool
+        Polish at every rung; False: one rung at the last tolerance.
+    max_iter, check_termination : int
+        OSQP's iteration budget per step (shared by the rungs) and its convergence-check period.
+    shift_x, shift_y : ndarray of int
+        Indices that shift a primal and a dual solution one sample forward (the warm start).
+    """
+
+    def __init__(
+        self,
+        tolerances: tuple[float, ...],
+        polish: bool,
+        max_iter: int,
+        check_termination: int,
+        shift_x: NDArray[np.int64],
+        shift_y: NDArray[np.int64],
+    ) -> None:
+        tol = tuple(float(e) for e in tolerances)
+        self._ladder = tol if polish else tol[-1:]
+        self._polish = polish
+        self._max_iter = int(max_iter)
+        self._check = int(check_termination)
+        self._shift_x, self._shift_y = shift_x, shift_y
+        self._solver = osqp.OSQP()
+        self._eps = self._ladder[0]
+        self._budget = self._max_iter
+        self._ws_x: FloatArray | None = None
+        self._ws_y: FloatArray | None = None
+        self._nv = self._nc = 0
+
+    @property
+    def name(self) -> BackendName:
+        return "osqp"
+
+    def setup(
+        self, P: sp.csc_matrix, A: sp.csc_matrix, q: FloatArray, lo: FloatArray, up: FloatArray
+    ) -> None:
+        self._nv, self._nc = A.shape[1], A.shape[0]
+        try:
+            self._solver.setup(
+                P,
+                q,
+                A,
+                lo,
+                up,
+                verbose=False,
+                eps_abs=self._ladder[0],
+                eps_rel=self._ladder[0],
+                polishing=self._polish,
+                max_iter=self._max_iter,
+                check_termination=self._check,
+                adaptive_rho=True,
+                adaptive_rho_interval=50,  # iteration-based, not time-based: deterministic
+                warm_starting=True,
+            )
+        except Exception as e:  # OSQPException / ValueError from the extension
+            raise ValueError(f"OSQP setup failed: {e!r}") from e
+
+    def update_matrices(self, P: sp.csc_matrix, A: sp.csc_matrix, x_offset: FloatArray) -> None:
+        self._solver.update(Px=P.data, Ax=A.data)
+        if self._ws_x is not None:
+            self._ws_x = self._ws_x + x_offset
+
+    def reset(self) -> None:
+        self._ws_x = self._ws_y = None
+
+    def solve(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> QpSolution:
+        """The ladder: each rung solves to its tolerance with polishing, continuing the ADMM
+        iterations of the previous rung (OSQP keeps its iterate between ``solve`` calls). A
+        successful polish gives the exact optimum of the identified active set and ends the
+        ladder. If a rung stops without converging, the previous rung's solution (if any) is
+        used, flagged inexact, unless OSQP reports "solved inaccurate" at a rung whose 10 x
+        tolerance is tighter still."""
+        self._solver.update(q=q, l=lo, u=up)
+        if self._ws_x is None or self._ws_y is None:
+            self._solver.warm_start(x=np.zeros(self._nv), y=np.zeros(self._nc))
+        else:
+            self._solver.warm_start(x=self._ws_x, y=self._ws_y)
+        status, iterations, time_s = "not run", 0, 0.0
+        best: tuple[FloatArray, FloatArray] | None = None
+        last: tuple[FloatArray, FloatArray] | None = None
+        accurate = False
+        held_eps = math.inf  # tolerance met by the solution held in ``best``
+        for rung, eps in enumerate(self._ladder):
+            left = self._max_iter - iterations
+            if left <= 0:
+                break
+            if self._eps != eps or self._budget != left:
+                self._solver.update_settings(eps_abs=eps, eps_rel=eps, max_iter=left)
+                self._eps, self._budget = eps, left
+            res = self._solver.solve(raise_error=False)
+            info = res.info
+            iterations += int(info.iter)
+            time_s += float(info.update_time) + float(info.solve_time) + float(info.polish_time)
+            status = str(info.status)
+            x = np.array(res.x, dtype=np.float64)
+            y = np.array(res.y, dtype=np.float64)
+            finite = x.shape == (self._nv,) and bool(np.isfinite(x).all()) and bool(np.isfinite(y).all())
+            if finite:
+                last = (x, y)
+            status_val = int(info.status_val)
+            if status_val == _OSQP_SOLVED and finite:
+                done = int(info.status_polish) == 1 or rung == len(self._ladder) - 1
+                best, accurate, held_eps = (x, y), done, eps
+                if done:
+                    break
+                continue
+            # OSQP's "solved inaccurate" meets 10 x its tolerance: keep it if that is still tighter
+            if status_val == _OSQP_SOLVED_INACCURATE and finite and 10.0 * eps < held_eps:
+                best, accurate = (x, y), False
+            break
+        start = best if best is not None else last  # an unfinished iterate still beats an old plan
+        if start is not None:
+            self._ws_x, self._ws_y = start[0][self._shift_x], start[1][self._shift_y]
+        elif self._ws_x is not None and self._ws_y is not None:
+            self._ws_x, self._ws_y = self._ws_x[self._shift_x], self._ws_y[self._shift_y]
+        return QpSolution(
+            x=None if best is None else best[0],
+            accurate=accurate,
+            status=status,
+            iterations=iterations,
+            time_s=time_s,
+        )
+
+
+def make_backend(
+    name: BackendName,
+    *,
+    tolerances: tuple[float, ...],
+    polish: bool,
+    max_iter: int,
+    check_termination: int,
+    shift_x: NDArray[np.int64],
+    shift_y: NDArray[np.int64],
+) -> QpBackend:
+    """The backend ``name`` with the configuration's settings."""
+    if name == "daqp":
+        return DaqpBackend(max_iter)
+    return OsqpBackend(tolerances, polish, max_iter, check_termination, shift_x, shift_y)

@@ -1,0 +1,189 @@
+"""The MPC's QP backends (supervisor.mpc.backends): daqp and OSQP behind one interface.
+
+Oracles: cvxpy + CLARABEL at 1e-12 on random strictly convex QPs (each backend's answer must be
+its optimum); the other backend on the controller's own QPs (daqp's hot-started answer must equal
+OSQP's at a tight polished tolerance, step after step of a rate-limited transient); a freshly
+built controller after a model update.
+"""
+
+from __future__ import annotations
+
+import cvxpy as cp
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import given, reject, settings
+from hypothesis import strategies as st
+
+from supervisor.mpc import DaqpBackend, MpcConfig, MpcController, MpcModel, OsqpBackend, QpBackend
+from tanklab.enums import MpcStatus
+
+U_RANGE = 1.2e-4
+
+
+def _random_qp(seed: int, n: int = 8, rows: int = 14) -> tuple[sp.csc_matrix, sp.csc_matrix, np.ndarray]:
+    """A strictly convex QP: P = G'G + I; A = random sparse rows, then unit rows on some of the
+    variables (one of them twice), so a backend meets bounds, missing bounds and general rows."""
+    rng = np.random.default_rng(seed)
+    G = rng.normal(size=(n, n))
+    P = G.T @ G + np.eye(n)
+    extra = rng.normal(size=(rows - n, n)) * (rng.random((rows - n, n)) < 0.4)
+    bounded = np.flatnonzero(rng.random(n) < 0.7)
+    unit = np.eye(n)[np.concatenate([bounded, bounded[:1]])]
+    A = np.vstack([extra, unit])
+    return sp.csc_matrix(np.triu(P)), sp.csc_matrix(A), rng.normal(size=n) * 3.0
+
+
+def _clarabel(
+    P: sp.csc_matrix, A: sp.csc_matrix, q: np.ndarray, lo: np.ndarray, up: np.ndarray
+) -> np.ndarray:
+    v = cp.Variable(P.shape[0])
+    Pd = P.toarray()
+    Pd = Pd + np.triu(Pd, 1).T
+    prob = cp.Problem(
+        cp.Minimize(0.5 * cp.quad_form(v, cp.psd_wrap(Pd)) + q @ v),
+        [A.toarray() @ v >= lo, A.toarray() @ v <= up],
+    )
+    try:
+        prob.solve(solver="CLARABEL", tol_feas=1e-12, tol_gap_abs=1e-12, tol_gap_rel=1e-12)
+    except cp.error.SolverError:
+        reject()  # no oracle for this example (CLARABEL gives up at 1e-12 on a few random QPs)
+    assert prob.status == "optimal"
+    return np.asarray(v.value)
+
+
+def _backends(nv: int, nc: int) -> list[QpBackend]:
+    shift_x, shift_y = np.arange(nv), np.arange(nc)  # no shift: the QPs are unrelated
+    return [DaqpBackend(1000), OsqpBackend((1e-8,), True, 200_000, 5, shift_x, shift_y)]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000))
+def test_each_backend_finds_the_optimum_of_random_qps(seed: int) -> None:
+    P, A, q = _random_qp(seed)
+    nc, nv = A.shape
+    rng = np.random.default_rng(seed + 2)
+    lo = -rng.random(nc) - 0.1
+    up = rng.random(nc) + 0.1
+    lo[rng.random(nc) < 0.2] = -np.inf  # one-sided rows too
+    ref = _clarabel(P, A, q, lo, up)
+    for backend in _backends(nv, nc):
+        backend.setup(P, A, q, lo, up)
+        sol = backend.solve(q, lo, up)
+        assert sol.x is not None and sol.accurate, (backend.name, sol.status)
+        assert np.max(np.abs(sol.x - ref)) <= 1e-6, backend.name
+        z = A @ sol.x
+        assert np.all(z >= lo - 1e-8) and np.all(z <= up + 1e-8)
+
+
+def test_daqp_hot_start_reuses_the_working_set_and_a_new_qp_still_solves() -> None:
+    P, A, q = _random_qp(7)
+    nc = A.shape[0]
+    lo, up = np.full(nc, -0.3), np.full(nc, 0.3)
+    backend = DaqpBackend(1000)
+    backend.setup(P, A, q, lo, up)
+    cold = backend.solve(q, lo, up)
+    hot = backend.solve(q, lo, up)
+    assert cold.x is not None and hot.x is not None
+    assert cold.iterations > 1 and hot.iterations <= 1
+    assert np.array_equal(cold.x, hot.x)
+    # a different right-hand side from that working set: the optimum of the new QP
+    q2 = -q
+    moved = backend.solve(q2, lo, up)
+    assert moved.x is not None
+    assert np.max(np.abs(moved.x - _clarabel(P, A, q2, lo, up))) <= 1e-6
+    # reset forgets the start: the same QP again costs what a cold solve costs
+    backend.reset()
+    assert backend.solve(q2, lo, up).iterations > 1
+
+
+def test_an_infeasible_qp_gives_no_solution_and_the_next_one_solves() -> None:
+    P, A, q = _random_qp(11)
+    nc, nv = A.shape
+    lo, up = np.full(nc, -0.3), np.full(nc, 0.3)
+    for backend in _backends(nv, nc):
+        backend.setup(P, A, q, lo, up)
+        # the last unit row repeats an earlier one (_random_qp): contradictory bounds on it
+        twin = int(np.flatnonzero((A.toarray() == A.toarray()[-1]).all(axis=1))[0])
+        bad_lo, bad_up = lo.copy(), up.copy()
+        bad_lo[twin], bad_up[twin] = 0.1, 0.2
+        bad_lo[-1], bad_up[-1] = 0.25, 0.3
+        failed = backend.solve(q, bad_lo, bad_up)
+        assert failed.x is None and not failed.accurate, backend.name
+        good = backend.solve(q, lo, up)
+        assert good.x is not None and good.accurate, backend.name
+
+
+def _kortela_like(**cfg: object) -> MpcController:
+    a = np.array([[0.98, 0.0, 0.01], [0.0, 0.97, 0.015], [0.015, 0.01, 0.975]])
+    b = np.array([[160.0, 0.0], [0.0, 160.0], [0.0, 0.0]])
+    model = MpcModel(
+        A=a,
+        B=b,
+        C=np.eye(3),
+        Cz=np.eye(3)[:2],
+        x_op=np.array([0.4, 0.2, 0.3]),
+        u_op=np.array([5e-5, 3e-5]),
+        ts_s=2.5,
+    )
+    base: dict[str, object] = dict(
+        horizon=20,
+        u_min=0.0,
+        u_max=U_RANGE,
+        du_min=-1e-6,
+        du_max=1e-6,
+        z_min=0.0,
+        z_max=0.63,
+        S=1e8,
+        formulation="condensed",
+    )
+    base.update(cfg)
+    return MpcController(model, MpcConfig(**base))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("z_max", [0.63, 0.46])  # 0.46: the output bound becomes active
+def test_a_transient_on_daqp_matches_osqp_at_a_tight_tolerance(z_max: float) -> None:
+    """A new setpoint moves the rate-limited plan's active set every sample: daqp, hot-started
+    from the previous working set, gives OSQP's polished optimum at 1e-8 each sample."""
+    ctrl = _kortela_like(z_max=z_max)
+    check = _kortela_like(z_max=z_max, solver="osqp", tolerances=(1e-8,), max_iter=200_000)
+    assert ctrl.solver == "daqp" and check.solver == "osqp"
+    x = np.array([0.41, 0.19, 0.3])
+    u_prev = np.array([5e-5, 3e-5])
+    model = ctrl.model
+    hot = 0
+    for k in range(30):
+        r = np.array([0.45, 0.2]) if k < 3 else np.array([0.5, 0.17])
+        res = ctrl.plan(x, r, u_prev)
+        ref = check.plan(x, r, u_prev)
+        assert res.status == ref.status == MpcStatus.SOLVED
+        assert res.solved_by == "daqp" and ref.solved_by == "osqp"
+        assert np.max(np.abs(res.planned_u - ref.planned_u)) <= 1e-6 * U_RANGE
+        assert res.objective == pytest.approx(ref.objective, rel=1e-6)
+        hot += res.iterations <= 2
+        x = model.x_op + model.A @ (x - model.x_op) + model.B @ (res.u - model.u_op)
+        u_prev = res.u
+    assert hot >= 5  # near the end of the transient the working set barely changes
+
+
+def test_model_update_on_daqp_equals_a_fresh_controller() -> None:
+    ctrl = _kortela_like()
+    x, r, u_prev = np.array([0.41, 0.19, 0.3]), np.array([0.45, 0.2]), np.array([5e-5, 3e-5])
+    ctrl.plan(x, r, u_prev)
+    ctrl.update_model(ctrl.model.A * 0.999, ctrl.model.B, u_op=np.array([5.2e-5, 2.9e-5]))
+    fresh = MpcController(ctrl.model, ctrl.config)
+    a, b = ctrl.plan(x, r, u_prev), fresh.plan(x, r, u_prev)
+    assert np.max(np.abs(a.planned_u - b.planned_u)) <= 1e-9 * U_RANGE
+    assert a.objective == pytest.approx(b.objective, rel=1e-9)
+
+
+def test_the_solver_choice_follows_the_form_and_refuses_daqp_on_the_sparse_form() -> None:
+    assert _kortela_like().solver == "daqp"
+    assert _kortela_like(formulation="sparse").solver == "osqp"
+    assert _kortela_like(solver="osqp").solver == "osqp"
+    with pytest.raises(ValueError, match="solver 'daqp' needs formulation"):
+        _kortela_like(formulation="sparse", solver="daqp")
+    with pytest.raises(ValueError, match="solver must be"):
+        _kortela_like(solver="qpoases")
+    # with the solver named, "auto" picks the form daqp solves, at any horizon
+    assert _kortela_like(horizon=60, solver="daqp", formulation="auto").formulation == "condensed"
