@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from tanklab.config import SiteConfig, load_site
-from tanklab_io.ua import ClientSetup
+from tanklab_io.ua_client import ClientSetup
 from tanklab_testing.stats import Summary  # noqa: F401  (re-exported: the benchmarks take it from here)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -182,7 +182,7 @@ def bench_home() -> Path:
 
 
 def cli_setup() -> ClientSetup:
-    """A :class:`tanklab_io.ua.Link` setup logging in as the bench home's engineer."""
+    """A :class:`tanklab_io.ua_client.Link` setup logging in as the bench home's engineer."""
     from tanklab_io.home import SecurityHome
     from tanklab_io.ua_security import cli_identity, client_setup
 

@@ -734,7 +734,7 @@ def _stack_section(rep: Report) -> list[str]:
     lines = [
         "## 3. OPC UA round trip",
         "",
-        "One client (`tanklab_io.ua.Link`, the tiers' own client) against a real PLC process scanning "
+        "One client (`tanklab_io.ua_client.Link`, the tiers' own client) against a real PLC process scanning "
         "at speed 1 (with its plant process), loopback, back-to-back Reads after 20 warm-up Reads.",
         "",
     ]

@@ -53,7 +53,7 @@ from benchmarks.procs import bench_process
 from tanklab.enums import GainSource, SensorFault, SupervisorMode
 from tanklab.errors import LinkError
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
-from tanklab_io.ua import Link
+from tanklab_io.ua_client import Link
 from tanklab_testing.procs import alive, free_base_port, tankctl_pids
 from tanklab_testing.sites import site_config
 

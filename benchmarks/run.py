@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     # The benchmark's own OPC UA clients retry connections while tiers start: keep asyncua quiet.
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
-    logging.getLogger("tanklab_io.ua").setLevel(logging.ERROR)
+    logging.getLogger("tanklab_io.ua_client").setLevel(logging.ERROR)
     # as the tiers and `tankctl simulate` do (tanklab_io.threads): the comparators run on it too
     limit_blas_threads()
 

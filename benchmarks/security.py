@@ -81,7 +81,7 @@ from typing import Any
 
 from benchmarks.common import Summary, fmt
 from benchmarks.stack import LATENESS_RE
-from tanklab_io.ua import new_client
+from tanklab_io.ua_client import new_client
 from tanklab_io.ua_security import LIMITS, ClientIdentity, secure_client
 from tanklab_io.users import Credentials
 from tanklab_testing.logins import Logins, Probe, provision, quiet_disconnect, session

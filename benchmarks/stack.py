@@ -5,7 +5,7 @@ Every tier runs as ``python -m tankctl plant|plc`` or the whole stack as ``tankc
 free loopback ports in 20000-30000, each with its own log and plant state file under the run's
 log directory (so no checkpoint of an earlier run is resumed).
 
-- Round trip: an OPC UA client (:class:`tanklab_io.ua.Link`, the tiers' own client) reads one node
+- Round trip: an OPC UA client (:class:`tanklab_io.ua_client.Link`, the tiers' own client) reads one node
   of a running PLC, and the supervisor's snapshot paths (``PlcSnapshot.read_paths``, one Read),
   back to back; each Read is timed with ``time.perf_counter``.
 - Setpoint-to-action: a client writes ``PLC.LIC1.SP`` alternately to 0.6 m and 0 m (its range
@@ -48,7 +48,7 @@ from benchmarks.common import (
 from benchmarks.procs import CpuMeter, bench_process
 from supervisor.cycle import PlcSnapshot
 from tanklab.tags import plant_tags, plc_tags, tags_by_path
-from tanklab_io.ua import Link
+from tanklab_io.ua_client import Link
 from tanklab_testing.procs import TankctlProcess, free_base_port
 
 LATENESS_RE = re.compile(

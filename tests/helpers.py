@@ -17,7 +17,7 @@ from asyncua import Client
 
 from tanklab.tags import Role
 from tanklab_io.home import SecurityHome
-from tanklab_io.ua import new_client
+from tanklab_io.ua_client import new_client
 from tanklab_io.ua_security import ClientIdentity, ServerSecurity, secure_client
 from tanklab_io.users import Credentials
 from tanklab_testing.logins import Logins

@@ -7,7 +7,7 @@ one scan period and answers the new readings in the same round trip.
 
 A lost plant never raises out of here into the scan: :meth:`FieldLink.read_inputs` answers
 ``None`` and the scan runs with every PV bad (the blocks hold or substitute), while
-:class:`tanklab_io.ua.Link` reconnects in the background of the following scans.
+:class:`tanklab_io.ua_client.Link` reconnects in the background of the following scans.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
 from tanklab.tags import plant_tags, tags_by_path
-from tanklab_io.ua import ClientSetup, Link
+from tanklab_io.ua_client import ClientSetup, Link
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.errors import LinkError
 from tanklab.tags import plc_tags, tags_by_path
-from tanklab_io.ua import ClientSetup, Link
+from tanklab_io.ua_client import ClientSetup, Link
 
 log = logging.getLogger(__name__)
 

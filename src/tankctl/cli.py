@@ -512,7 +512,7 @@ def up(
     # The board is an OPC UA client; its reconnect chatter (and that of the start-up probes)
     # must not scroll over the board or the event lines.
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
-    logging.getLogger("tanklab_io.ua").setLevel(logging.ERROR)
+    logging.getLogger("tanklab_io.ua_client").setLevel(logging.ERROR)
 
     async def main(stop: asyncio.Event, cause: Any) -> int:
         return await run_stack(

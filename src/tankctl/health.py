@@ -31,7 +31,7 @@ from typing import Any, NoReturn
 from asyncua import ua
 
 from tanklab_io.home import SecurityHome, default_home
-from tanklab_io.ua import new_client, resolve
+from tanklab_io.ua_client import new_client, resolve
 from tanklab_io.ua_security import ClientIdentity, secure_client
 
 DEFAULT_PATHS = {

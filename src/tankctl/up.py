@@ -50,7 +50,7 @@ from tanklab.errors import TanklabError
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
 from tanklab_io.home import SecurityHome, default_home, provision
 from tanklab_io.pki import IDENTITIES
-from tanklab_io.ua import Link
+from tanklab_io.ua_client import Link
 from tanklab_io.ua_security import ClientIdentity, cli_identity, client_setup
 
 __all__ = [

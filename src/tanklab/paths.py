@@ -25,7 +25,7 @@ TIER_ROOTS: dict[Tier, str] = {"plant": "Plant", "plc": "PLC", "supervisor": "Su
 """The root object of each tier's nodes."""
 
 LINK_STATUS_ITEMS = ("Attempts", "Connects", "LastError", "RetryDelay")
-"""Diagnostics of a tier's link to the tier below (:class:`tanklab_io.ua.Link`), one node each."""
+"""Diagnostics of a tier's link to the tier below (:class:`tanklab_io.ua_client.Link`), one node each."""
 
 IDENTITY_ITEMS = ("SiteName", "ConfigDigest", "Config")
 """What each tier says about the site it runs (:mod:`tanklab.identity`), one node each."""

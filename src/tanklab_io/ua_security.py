@@ -68,7 +68,6 @@ from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.pki import Pki
 from tanklab_io.ua import (
     CURRENT_USER,
-    ClientSetup,
     MethodHandler,
     Publisher,
     TankUser,
@@ -77,6 +76,7 @@ from tanklab_io.ua import (
     build_nodes,
     install_write_guard,
 )
+from tanklab_io.ua_client import ClientSetup
 from tanklab_io.users import ENV_PASSWORD, ENV_USER, Credentials, Lockout, UsersFile, load_credentials
 
 log = logging.getLogger(__name__)
@@ -642,7 +642,7 @@ def cli_identity(
 
 
 def client_setup(identity: ClientIdentity) -> ClientSetup:
-    """A :class:`tanklab_io.ua.Link` ``setup`` connecting as ``identity``."""
+    """A :class:`tanklab_io.ua_client.Link` ``setup`` connecting as ``identity``."""
 
     async def setup(client: Client) -> None:
         await secure_client(client, identity)

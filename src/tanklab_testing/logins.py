@@ -18,8 +18,8 @@ from asyncua import Client, ua
 from tanklab.tags import Role
 from tanklab_io.home import SecurityHome
 from tanklab_io.home import provision as provision_home
-from tanklab_io.ua import namespace_index, new_client
-from tanklab_io.ua import quiet_disconnect as ua_quiet_disconnect
+from tanklab_io.ua_client import namespace_index, new_client
+from tanklab_io.ua_client import quiet_disconnect as ua_quiet_disconnect
 from tanklab_io.ua_security import ClientIdentity, secure_client
 from tanklab_io.users import Credentials, load_credentials
 
@@ -107,5 +107,5 @@ class Probe:
 
 
 async def quiet_disconnect(client: Client) -> None:
-    """:func:`tanklab_io.ua.quiet_disconnect` with the probes' 2 s bound: the tier may be gone or frozen."""
+    """:func:`tanklab_io.ua_client.quiet_disconnect` with the probes' 2 s bound (the tier may be gone)."""
     await ua_quiet_disconnect(client, 2.0)

@@ -20,7 +20,7 @@ import pytest
 
 from helpers import ROOT, TierProcess, free_base_port, secure, wait_until
 from tanklab.tags import link_status_paths
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 
 pytestmark = pytest.mark.process
 

@@ -31,7 +31,7 @@ from helpers import ROOT, free_port, wait_until
 from plant_sim.runtime import run_plant
 from tanklab.config import load_site
 from tanklab_io.home import SecurityHome
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 from tanklab_io.ua_security import ClientIdentity, ServerSecurity, secure_client
 from tanklab_io.users import Credentials
 

@@ -22,7 +22,7 @@ from plc_emulator.link import FieldLink
 from plc_emulator.program import PlcProgram
 from plc_emulator.runtime import warm_resume
 from tanklab.config import load_site
-from tanklab_io.ua import read_values, resolve
+from tanklab_io.ua_client import read_values, resolve
 from tanklab_io.ua_security import client_setup
 
 ROOT = Path(__file__).resolve().parents[2]

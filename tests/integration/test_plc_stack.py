@@ -13,7 +13,7 @@ import pytest
 from asyncua import ua
 
 from helpers import ROOT, TierProcess, free_port, secure, wait_until
-from tanklab_io.ua import read_values, resolve
+from tanklab_io.ua_client import read_values, resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
 SPEED = "20"

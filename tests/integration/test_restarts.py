@@ -33,7 +33,7 @@ from helpers import ROOT, TierProcess, secure, wait_until
 from tanklab.config import load_site
 from tanklab.enums import GainSource, LoopMode, SensorFault
 from tanklab.tags import plant_tags, plc_tags
-from tanklab_io.ua import read_values, resolve
+from tanklab_io.ua_client import read_values, resolve
 from tanklab_testing.procs import free_base_port  # random bases: parallel sessions do not collide
 from tanklab_testing.sites import site_config
 from tanklab_testing.stack import Stack

@@ -20,7 +20,7 @@ from asyncua import Client
 
 from helpers import ROOT, TierProcess, UpProcess, free_base_port, secure, wait_until
 from tanklab.enums import GainSource, LoopMode
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 
 CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
 pytestmark = pytest.mark.process

@@ -10,7 +10,7 @@ from asyncua import ua
 
 from helpers import ROOT, TierProcess, free_port, secure, wait_until
 from tanklab.enums import GainSource, LoopMode, SupervisorMode
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
 SPEED = "20"

@@ -24,7 +24,7 @@ import pytest
 from helpers import ROOT, UpProcess, free_base_port, secure, tanklab_pids, wait_until
 from tankctl.up import last_error_line, running_pid
 from tanklab.enums import SupervisorMode
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 
 CONFIG = ROOT / "configs/three_tank_energies_sim.yaml"
 SITE = "three_tank_energies_sim"

@@ -40,7 +40,7 @@ from asyncua import ua
 from helpers import ROOT, engineer_logins, secure, wait_until
 from tanklab.config import load_site
 from tanklab.enums import GainSource, LoopMode, SupervisorMode
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 from tanklab_testing.logins import Probe
 from tanklab_testing.procs import free_base_port  # random bases: parallel sessions do not collide
 from tanklab_testing.sites import site_config

@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 
 from helpers import engineer_logins, secure, session_home
-from tanklab_io.ua import new_client
+from tanklab_io.ua_client import new_client
 from tanklab_io.ua_security import ClientIdentity, secure_client
 from tanklab_io.users import Credentials
 from tanklab_testing import security

@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 
 from helpers import ROOT, TierProcess, free_base_port, secure
 from tankctl.simulate_cli import PLOTS_MISSING
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")
 

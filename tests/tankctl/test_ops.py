@@ -42,7 +42,7 @@ from tanklab.config import load_site
 from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
 from tanklab.tags import Tier
-from tanklab_io.ua import resolve
+from tanklab_io.ua_client import resolve
 from tanklab_testing.stack import Stack
 
 CONFIG = str(ROOT / "configs/three_tank_energies_sim.yaml")

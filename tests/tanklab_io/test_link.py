@@ -1,4 +1,4 @@
-"""The tiers' client link (``tanklab_io.ua.Link``): backoff schedule, failure reports, recovery.
+"""The tiers' client link (``tanklab_io.ua_client.Link``): backoff schedule, failure reports, recovery.
 
 The backoff schedule is a pure function, checked with hand-computed values and a Hypothesis
 bound. The link's waiting is on an injected clock that only moves when the test moves it, so no
@@ -32,7 +32,7 @@ from tanklab.tags import (
     supervisor_tags,
     tags_by_path,
 )
-from tanklab_io.ua import BACKOFF_CAP_S, Link, backoff_delay, describe_error
+from tanklab_io.ua_client import BACKOFF_CAP_S, Link, backoff_delay, describe_error
 from tanklab_io.ua_security import client_setup
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
@@ -154,7 +154,7 @@ async def test_refused_attempts_are_logged_counted_and_spaced_by_the_backoff(
     url = f"opc.tcp://127.0.0.1:{port}/tanklab/plant"
     clock = VirtualClock()
     link = _link(url, clock)
-    caplog.set_level(logging.WARNING, logger="tanklab_io.ua")
+    caplog.set_level(logging.WARNING, logger="tanklab_io.ua_client")
     assert not await link.ensure()
     assert link.attempts == 1
     assert link.last_error.startswith("ConnectionRefusedError: ")
@@ -200,7 +200,7 @@ async def test_a_failing_setup_is_reported_with_its_class_and_message(
         setup=setup,
         clock=clock,
     )
-    caplog.set_level(logging.INFO, logger="tanklab_io.ua")
+    caplog.set_level(logging.INFO, logger="tanklab_io.ua_client")
     assert not await link.ensure()
     assert link.last_error == "PermissionError: pki/private/plc.pem: Permission denied"
     (record,) = caplog.records

@@ -21,7 +21,7 @@ from tankctl.ops.errors import (
 )
 from tanklab.errors import LinkError, SecurityError, TanklabError
 from tanklab.tags import NAMESPACE_URI, Tag, Tier, identity_paths
-from tanklab_io.ua import ConnectError, Link
+from tanklab_io.ua_client import ConnectError, Link
 from tanklab_io.ua_security import cli_identity, client_setup
 
 if TYPE_CHECKING:
@@ -88,7 +88,7 @@ class BrowsedNode:
 
 
 class TierClient:
-    """An operator command's client of one tier: a :class:`tanklab_io.ua.Link` (the one OPC UA
+    """An operator command's client of one tier: a :class:`tanklab_io.ua_client.Link` (the one OPC UA
     client wrapper: connection, bounded Read, Write and Call, quiet disconnect) that connects
     once, checks the tier's site identity, browses, and turns every failure into one exception.
 

@@ -19,7 +19,7 @@ from asyncua import Client, ua
 
 from tanklab.enums import LoopMode
 from tanklab.tags import Tag
-from tanklab_io.ua import namespace_index
+from tanklab_io.ua_client import namespace_index
 from tanklab_testing.logins import Logins, session
 from tanklab_testing.security.draws import pick
 from tanklab_testing.sites import PLC_TAGS, SITE

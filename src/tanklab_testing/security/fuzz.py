@@ -14,7 +14,7 @@ import numpy as np
 from asyncua import Client, ua
 
 from tanklab.tags import DataType, Tag
-from tanklab_io.ua import namespace_index
+from tanklab_io.ua_client import namespace_index
 from tanklab_testing.logins import ROLE_OF, Logins, session
 from tanklab_testing.security.draws import pick
 from tanklab_testing.security.raw import RAW_KINDS, RawCase, raw_case, run_raw_case
