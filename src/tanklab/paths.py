@@ -36,6 +36,14 @@ BALANCE_ITEMS = ("In", "Out", "Leaked", "Spilled", "Stored", "Error")
 BalanceItem = Literal["In", "Out", "Leaked", "Spilled", "Stored", "Error"]
 AlarmKind = Literal["H", "L", "HH"]
 
+PROBE_PATHS: dict[str, str] = {
+    "plant": "Plant.Sim.Time",
+    "plc": "PLC.Status.Scan",
+    "supervisor": "Supervisor.Mode",
+}
+"""The node a readiness or health probe reads on each tier: one that every site has and that
+the tier serves from its first second (``tankctl.health``, ``tankctl up``)."""
+
 
 def link_status_paths(prefix: str) -> dict[str, str]:
     """Path of each :data:`LINK_STATUS_ITEMS` node under ``prefix`` (``PLC.Status.PlantLink``)."""
@@ -111,6 +119,11 @@ class PlantPaths:
         return TransmitterPaths(tank)
 
     @staticmethod
+    def transmitter(name: str) -> TransmitterPaths:
+        """Level transmitter ``name`` (``LT1``), the same object as ``lt("T1")``."""
+        return PlantPaths.lt(f"T{name[2:]}")
+
+    @staticmethod
     @cache
     def pump(name: str) -> PumpPaths:
         """Pump ``name`` (``P1``)."""
@@ -148,6 +161,7 @@ class LoopPaths:
         "release_gains",
         "remote_mv",
         "reset_gains",
+        "root",
         "set_gains",
         "sp",
         "sp_high",
@@ -157,6 +171,8 @@ class LoopPaths:
     def __init__(self, name: str) -> None:
         root = f"PLC.{name}"
         self.name = name
+        self.root = root
+        """The loop's object (``PLC.LIC1``), the parent of its nodes and methods."""
         self.sp = f"{root}.SP"
         """Setpoint [m] (operator)."""
         self.pv = f"{root}.PV"
@@ -210,6 +226,10 @@ class PlcPaths:
     interlock_reset = "PLC.Interlock.Reset"
     io_fault = "PLC.Alarms.IoFault"
     supervisor_lost = "PLC.Alarms.SupervisorLost"
+    alarms_prefix = "PLC.Alarms."
+    """What every alarm node's path starts with (the alarm's name follows it)."""
+    interlocks_prefix = "PLC.Interlock."
+    """What every interlock node's path starts with (``T1HH``, ``Reset`` follow it)."""
 
     @staticmethod
     @cache
@@ -256,11 +276,14 @@ class RlsPaths:
         "on_box_limit",
         "prior",
         "rejected",
+        "root",
         "theta",
     )
 
     def __init__(self, loop: str) -> None:
         root = f"Supervisor.RLS.{loop}"
+        self.root = root
+        """The loop's adaptation object (``Supervisor.RLS.LIC1``)."""
         self.theta = f"{root}.Theta"
         self.covariance_trace = f"{root}.CovarianceTrace"
         self.accepted = f"{root}.Accepted"
