@@ -34,9 +34,10 @@ SRC = ROOT / "src"
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
 CONTRACT = {"tanklab/paths.py"}
+"""Where node paths are spelled."""
+
 TEST_SUPPORT = "tanklab_testing/"
 """Not shipped (decision 0032): its fuzzers spell wrong and made-up node paths on purpose."""
-"""Where node paths are spelled."""
 
 _PATH_START = re.compile(r"^(Plant|PLC|Supervisor)\.[A-Za-z{%]")
 _FSTRING_START = re.compile(r"^(Plant|PLC|Supervisor)\.")
