@@ -120,8 +120,6 @@ def test_the_builders_spell_the_contract_paths() -> None:
     assert paths.supervisor.disturbance == "Supervisor.Estimator.Disturbance"
     assert paths.plant.transmitter("LT2") is paths.plant.lt("T2")
     assert paths.plant.lt("T2").name == "LT2"
-    assert paths.plc.loop("LIC1").root == "PLC.LIC1"
-    assert paths.supervisor.rls("LIC2").root == "Supervisor.RLS.LIC2"
     assert paths.PROBE_PATHS == {
         "plant": "Plant.Sim.Time",
         "plc": "PLC.Status.Scan",

@@ -161,7 +161,6 @@ class LoopPaths:
         "release_gains",
         "remote_mv",
         "reset_gains",
-        "root",
         "set_gains",
         "sp",
         "sp_high",
@@ -171,8 +170,6 @@ class LoopPaths:
     def __init__(self, name: str) -> None:
         root = f"PLC.{name}"
         self.name = name
-        self.root = root
-        """The loop's object (``PLC.LIC1``), the parent of its nodes and methods."""
         self.sp = f"{root}.SP"
         """Setpoint [m] (operator)."""
         self.pv = f"{root}.PV"
@@ -276,14 +273,11 @@ class RlsPaths:
         "on_box_limit",
         "prior",
         "rejected",
-        "root",
         "theta",
     )
 
     def __init__(self, loop: str) -> None:
         root = f"Supervisor.RLS.{loop}"
-        self.root = root
-        """The loop's adaptation object (``Supervisor.RLS.LIC1``)."""
         self.theta = f"{root}.Theta"
         self.covariance_trace = f"{root}.CovarianceTrace"
         self.accepted = f"{root}.Accepted"
