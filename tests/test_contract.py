@@ -4,9 +4,8 @@ exactly one handler per writable tag in each tier's server.
 Node paths are built by :mod:`tanklab.paths` (``plant.lt("T1").pv``); a string literal or
 f-string that starts like a node path (``"PLC.LIC1.SP"``, ``f"Plant.{name}.Leak"``,
 ``"PLC.%s.SetGains"``) anywhere else in ``src`` retypes the contract. Docstrings and bare string
-statements are prose, not paths, and are not counted. Files not converted yet are listed in
-:data:`NOT_CONVERTED`; a listed file that no longer has a literal fails too, so the list only
-shrinks, to empty.
+statements are prose, not paths, and are not counted. Every file is converted: there is no
+allow-list.
 """
 
 from __future__ import annotations
@@ -35,24 +34,10 @@ SRC = ROOT / "src"
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
 CONTRACT = {"tanklab/paths.py"}
-TEST_SUPPORT = "tanklab_testing/"
-"""Not shipped (decision 0032): its fuzzers spell wrong and made-up node paths on purpose."""
 """Where node paths are spelled."""
 
-NOT_CONVERTED = {
-    "plc_emulator/program.py",
-    "plc_emulator/runtime.py",
-    "tankctl/health.py",
-    "tankctl/ops/gains.py",
-    "tankctl/ops/scenario.py",
-    "tankctl/ops/status.py",
-    "tankctl/ops/watch.py",
-    "tankctl/ops/writes.py",
-    "tankctl/randomized.py",
-    "tankctl/up.py",
-    "tankctl/up_board.py",
-}
-"""Files that still spell node paths (issue #22: converted after the wave's merge)."""
+TEST_SUPPORT = "tanklab_testing/"
+"""Not shipped (decision 0032): its fuzzers spell wrong and made-up node paths on purpose."""
 
 _PATH_START = re.compile(r"^(Plant|PLC|Supervisor)\.[A-Za-z{%]")
 _FSTRING_START = re.compile(r"^(Plant|PLC|Supervisor)\.")
@@ -112,12 +97,11 @@ def _literals_by_file() -> dict[str, list[tuple[int, str]]]:
 
 def test_no_node_path_is_spelled_outside_the_contract() -> None:
     by_file = _literals_by_file()
-    stray = {f: lits for f, lits in by_file.items() if f not in CONTRACT | NOT_CONVERTED}
+    stray = {f: lits for f, lits in by_file.items() if f not in CONTRACT}
     assert not stray, "node paths spelled outside tanklab.paths (use its builders): " + "; ".join(
         f"{f}:{line} {text}" for f, lits in stray.items() for line, text in lits
     )
-    done = sorted(NOT_CONVERTED - set(by_file))
-    assert not done, f"no node path literal left in {done}: remove them from NOT_CONVERTED"
+    assert set(by_file) == CONTRACT  # the scanner still sees the contract's own paths
 
 
 def test_the_builders_spell_the_contract_paths() -> None:
@@ -134,6 +118,31 @@ def test_the_builders_spell_the_contract_paths() -> None:
     assert paths.plc.heartbeat == "PLC.Supervisor.Heartbeat"
     assert paths.supervisor.rls("LIC1").noise_std == "Supervisor.RLS.LIC1.NoiseStd"
     assert paths.supervisor.disturbance == "Supervisor.Estimator.Disturbance"
+    assert paths.plant.transmitter("LT2") is paths.plant.lt("T2")
+    assert paths.plant.lt("T2").name == "LT2"
+    assert paths.PROBE_PATHS == {
+        "plant": "Plant.Sim.Time",
+        "plc": "PLC.Status.Scan",
+        "supervisor": "Supervisor.Mode",
+    }
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
+def test_the_alarm_and_interlock_prefixes_cover_exactly_those_nodes(config: Path) -> None:
+    site = load_site(config)
+    if site.plc is None:
+        return
+    by_path = {t.path: t for t in plc_tags(site)}
+    alarms = {p for p in by_path if p.startswith(paths.plc.alarms_prefix)}
+    interlocks = {p for p in by_path if p.startswith(paths.plc.interlocks_prefix)}
+    assert paths.plc.io_fault in alarms and paths.plc.supervisor_lost in alarms
+    for tank in site.tank_names:
+        assert {paths.plc.alarm(tank, k) for k in ("H", "L", "HH")} <= alarms
+    for loop in site.loop_names:
+        assert paths.plc.pv_bad_alarm(loop) in alarms
+    assert paths.plc.interlock_reset in interlocks
+    assert all(p.split(".")[1] == "Alarms" for p in alarms)
+    assert all(p.split(".")[1] == "Interlock" for p in interlocks)
 
 
 # ---- one handler per writable tag ---------------------------------------------------------

@@ -66,10 +66,10 @@ from plc_emulator.interlocks import Interlock, latch, reset_trips
 from plc_emulator.loops import ERROR_SCALE, Group, Loop, build_groups, group_gains, make_loops
 from plc_emulator.pid import Pid
 from plc_emulator.watchdog import Watchdog
+from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode
 from tanklab.gains import LoopGains
-from tanklab.tags import link_status_paths
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -77,12 +77,12 @@ BoolArray = NDArray[np.bool_]
 __all__ = ["ERROR_SCALE", "RUNTIME_OWNED_TAGS", "GainStatus", "PlcProgram", "ScanInputs", "ScanOutputs"]
 
 RUNTIME_OWNED_TAGS = (
-    "PLC.Status.ScanPeriod",
-    "PLC.Status.LastScanDuration",
-    "PLC.Status.Overruns",
-    "PLC.Supervisor.Heartbeat",
-    "PLC.Supervisor.Timeout",
-    *link_status_paths("PLC.Status.PlantLink").values(),
+    paths.plc.scan_period,
+    paths.plc.last_scan_duration,
+    paths.plc.overruns,
+    paths.plc.heartbeat,
+    paths.plc.supervisor_timeout,
+    *paths.link_status_paths(paths.plc.plant_link).values(),
 )
 """PLC variables the runtime publishes, not :meth:`PlcProgram.values` (plus ``PLC.LIC*.Block``):
 its scan timing, the supervisor's heartbeat and timeout, and its field link's status."""
@@ -656,34 +656,35 @@ class PlcProgram:
         """
         v: dict[str, Any] = {}
         for lp in self.loops:
-            p = f"PLC.{lp.spec.name}"
-            v[f"{p}.SP"] = float(lp.sp_m)
-            v[f"{p}.SPLow"], v[f"{p}.SPHigh"] = self.sp_limits(lp.spec.name)
-            v[f"{p}.PV"] = float(lp.pv_last_good_m)
-            v[f"{p}.MV"] = float(lp.mv)
-            v[f"{p}.Mode"] = int(lp.mode)
-            v[f"{p}.ManualMV"] = float(lp.manual_mv)
-            v[f"{p}.RemoteMV"] = float(lp.remote_mv)
+            n = paths.plc.loop(lp.spec.name)
+            v[n.sp] = float(lp.sp_m)
+            v[n.sp_low], v[n.sp_high] = self.sp_limits(lp.spec.name)
+            v[n.pv] = float(lp.pv_last_good_m)
+            v[n.mv] = float(lp.mv)
+            v[n.mode] = int(lp.mode)
+            v[n.manual_mv] = float(lp.manual_mv)
+            v[n.remote_mv] = float(lp.remote_mv)
             g = lp.applied
-            v[f"{p}.Kp"] = float(g.kp) if g else 0.0
-            v[f"{p}.Ki"] = float(g.ki) if g else 0.0
-            v[f"{p}.Kd"] = float(g.kd) if g else 0.0
-            v[f"{p}.GainSource"] = int(lp.source)
-            v[f"PLC.Alarms.{lp.spec.name}PvBad"] = bool(lp.pv_bad)
-        v["PLC.Status.Scan"] = int(self.scan_count)
-        v["PLC.Status.IoHealthy"] = bool(self.io_healthy)
-        v["PLC.Status.ModelTime"] = float(self.t_s)
-        v["PLC.Supervisor.Alive"] = bool(self.watchdog.alive)
-        v["PLC.Alarms.IoFault"] = not self.io_healthy
-        v["PLC.Alarms.SupervisorLost"] = bool(self.watchdog.ever_alive and not self.watchdog.alive)
+            v[n.kp] = float(g.kp) if g else 0.0
+            v[n.ki] = float(g.ki) if g else 0.0
+            v[n.kd] = float(g.kd) if g else 0.0
+            v[n.gain_source] = int(lp.source)
+            v[paths.plc.pv_bad_alarm(lp.spec.name)] = bool(lp.pv_bad)
+        v[paths.plc.scan] = int(self.scan_count)
+        v[paths.plc.io_healthy] = bool(self.io_healthy)
+        v[paths.plc.model_time] = float(self.t_s)
+        v[paths.plc.supervisor_alive] = bool(self.watchdog.alive)
+        v[paths.plc.io_fault] = not self.io_healthy
+        v[paths.plc.supervisor_lost] = bool(self.watchdog.ever_alive and not self.watchdog.alive)
         for i, name in enumerate(self.site.tank_names):
             level = self._levels_m[i]
             ok = self._good[i]
-            v[f"PLC.IO.LT{name[1:]}.PV"] = self._last_good_m[i]
-            v[f"PLC.IO.LT{name[1:]}.Good"] = ok
-            v[f"PLC.Alarms.{name}H"] = bool(ok and level >= self.high_m[i])
-            v[f"PLC.Alarms.{name}L"] = bool(ok and level <= self.low_m[i])
-            v[f"PLC.Alarms.{name}HH"] = bool(self._raw_m[i] >= self.hh_m[i])
+            io = paths.plc.io(name)
+            v[io.pv] = self._last_good_m[i]
+            v[io.good] = ok
+            v[paths.plc.alarm(name, "H")] = bool(ok and level >= self.high_m[i])
+            v[paths.plc.alarm(name, "L")] = bool(ok and level <= self.low_m[i])
+            v[paths.plc.alarm(name, "HH")] = bool(self._raw_m[i] >= self.hh_m[i])
         for il in self.interlocks:
-            v[f"PLC.Interlock.{il.tank_name}HH"] = bool(il.tripped)
+            v[paths.plc.interlock(il.tank_name)] = bool(il.tripped)
         return v

@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from plc_emulator.link import FieldLink, FieldReadings
 from plc_emulator.program import PlcProgram, ScanInputs
 from plc_emulator.server import PlcServer
+from tanklab import paths
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
 from tanklab_io.persist import read_json, write_json_atomic
@@ -151,7 +152,7 @@ def _trace_row(
 ) -> list[float]:
     """One trace line: scan, model time, levels read, commands written, each loop's SP, mode and
     gain source (as left by the scan)."""
-    row = [float(program.scan_count), float(values["PLC.Status.ModelTime"]), *readings.levels_m, *commands]
+    row = [float(program.scan_count), float(values[paths.plc.model_time]), *readings.levels_m, *commands]
     return row + [float(x) for lp in program.loops for x in (lp.sp_m, int(lp.mode), int(lp.source))]
 
 
@@ -248,7 +249,9 @@ async def run_plc(
     if warm:
         await warm_resume(program, field_link, hold_outputs=not lockstep)
     await server.start()
-    await server.publish({"PLC.Status.ScanPeriod": ts, "PLC.Supervisor.Timeout": program.watchdog.timeout_s})
+    await server.publish(
+        {paths.plc.scan_period: ts, paths.plc.supervisor_timeout: program.watchdog.timeout_s}
+    )
     if warm:
         await server.publish(program.values())
     if ready is not None:
@@ -295,8 +298,8 @@ async def run_plc(
             await server.publish(
                 {
                     **out.values,
-                    "PLC.Status.Overruns": deadlines.overruns,
-                    **field_link.link.status("PLC.Status.PlantLink"),
+                    paths.plc.overruns: deadlines.overruns,
+                    **field_link.link.status(paths.plc.plant_link),
                 }
             )
             if lockstep:
@@ -309,7 +312,7 @@ async def run_plc(
                 if healthy:
                     await field_link.write_commands(out.commands)
                 t_model += ts
-            await server.publish({"PLC.Status.LastScanDuration": clock.now() - started})
+            await server.publish({paths.plc.last_scan_duration: clock.now() - started})
             stats.scans += 1
             save_retained()
             if trace_file is not None and row is not None:

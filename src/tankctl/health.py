@@ -30,15 +30,12 @@ from typing import Any, NoReturn
 
 from asyncua import ua
 
+from tanklab.paths import PROBE_PATHS
 from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.ua_client import new_client, resolve
 from tanklab_io.ua_security import ClientIdentity, secure_client
 
-DEFAULT_PATHS = {
-    "plant": "Plant.Sim.Time",
-    "plc": "PLC.Status.Scan",
-    "supervisor": "Supervisor.Mode",
-}
+DEFAULT_PATHS = PROBE_PATHS
 """Node read by default, keyed by the URL's last path element (the tier)."""
 
 DEFAULT_TIMEOUT_S = 3.0

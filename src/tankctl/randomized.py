@@ -61,6 +61,7 @@ from plc_emulator.program import GainStatus
 from tankctl.cosim import CoSimEvents, CoSimulation
 from tankctl.events import apply_event as apply_scenario_event
 from tankctl.inflow_authority import InflowAuthority, inflow_capacity_m3_s, scan_rise_m
+from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.scenario import (
     DisturbanceEvent,
@@ -154,7 +155,7 @@ def describe(ev: RandomEvent) -> str:
         mv = "" if ev.mv_percent is None else f" (ManualMV {ev.mv_percent:.4g} %)"
         return f"{ev.loop}.Mode = {ev.mode}{mv}"
     if isinstance(ev, SupervisorModeEvent):
-        return f"Supervisor.Mode = {ev.mode}"
+        return f"{paths.supervisor.mode} = {ev.mode}"
     if isinstance(ev, GainsEvent):
         return f"{ev.loop}.SetGains({ev.kp:.6g}, {ev.ki:.6g}, {ev.kd:.6g})"
     return "Interlock.Reset()"

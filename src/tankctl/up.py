@@ -45,6 +45,7 @@ from rich.live import Live
 
 from tankctl.up_board import Board
 from tankctl.up_process import Tier, last_error_line, running_pid
+from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.errors import TanklabError
 from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
@@ -367,9 +368,7 @@ class LocalStack:
         return probe.done() and not probe.cancelled()
 
     async def _probe(self, tier: Tier) -> None:
-        path = {"plant": "Plant.Sim.Time", "plc": "PLC.Status.Scan", "supervisor": "Supervisor.Mode"}[
-            tier.name
-        ]
+        path = paths.PROBE_PATHS[tier.name]
         tags = {"plant": plant_tags, "plc": plc_tags, "supervisor": supervisor_tags}[tier.name](self.site)
         link = self.link(tier.name, {path: tags_by_path(tags)[path]}, tier.name)
         deadline = time.monotonic() + READY_TIMEOUT_S

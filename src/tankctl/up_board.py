@@ -10,12 +10,17 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
+from tanklab import paths
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
 from tanklab.tags import plant_tags, plc_tags, supervisor_tags, tags_by_path
 
 if TYPE_CHECKING:
     from tankctl.up import LocalStack
     from tankctl.up_process import Tier
+
+
+_ALARM_PREFIXES = (paths.plc.alarms_prefix, paths.plc.interlocks_prefix)
+"""The PLC's alarm and interlock nodes are shown on the board's alarm line when true."""
 
 
 class Board:
@@ -28,35 +33,29 @@ class Board:
         self.pumps = site.pump_names
         self.loops = site.loop_names
         pt, ct = tags_by_path(plant_tags(site)), tags_by_path(plc_tags(site))
-        self.plant_paths = [f"Plant.{t}.Level" for t in self.tanks] + [f"Plant.{p}.Flow" for p in self.pumps]
-        self.plant_paths += [f"Plant.{t}.Leak" for t in self.tanks] + [
-            "Plant.Sim.Time",
-            "Plant.Balance.Spilled",
+        plant, plc = paths.plant, paths.plc
+        self.plant_paths = [plant.tank(t).level for t in self.tanks] + [
+            plant.pump(p).flow for p in self.pumps
         ]
-        items = ("SP", "PV", "MV", "Mode", "Kp", "Ki", "Kd", "GainSource")
-        self.plc_paths = [f"PLC.{lp}.{i}" for lp in self.loops for i in items]
-        self.plc_paths += [
-            "PLC.Status.Scan",
-            "PLC.Status.IoHealthy",
-            "PLC.Supervisor.Alive",
-            "PLC.Status.Overruns",
+        self.plant_paths += [plant.tank(t).leak for t in self.tanks] + [
+            plant.sim_time,
+            plant.balance("Spilled"),
         ]
-        self.plc_paths += [
-            p for p in ct if p.startswith(("PLC.Alarms.", "PLC.Interlock.")) and ct[p].kind == "variable"
+        self.plc_paths = [
+            path
+            for lp in map(plc.loop, self.loops)
+            for path in (lp.sp, lp.pv, lp.mv, lp.mode, *lp.gains, lp.gain_source)
         ]
+        self.plc_paths += [plc.scan, plc.io_healthy, plc.supervisor_alive, plc.overruns]
+        self.plc_paths += [p for p in ct if p.startswith(_ALARM_PREFIXES) and ct[p].kind == "variable"]
         self.links = {
             "plant": stack.link("plant", {p: pt[p] for p in self.plant_paths}, "board-plant"),
             "plc": stack.link("plc", {p: ct[p] for p in self.plc_paths}, "board-plc"),
         }
         if "supervisor" in stack.tiers:
             st = tags_by_path(supervisor_tags(site))
-            self.sup_paths = [
-                "Supervisor.Mode",
-                "Supervisor.MPC.Status",
-                "Supervisor.MPC.SolveTime",
-                "Supervisor.Cycle",
-                "Supervisor.PlcConnected",
-            ]
+            sup = paths.supervisor
+            self.sup_paths = [sup.mode, sup.mpc_status, sup.mpc_solve_time, sup.cycle, sup.plc_connected]
             self.links["supervisor"] = stack.link(
                 "supervisor", {p: st[p] for p in self.sup_paths}, "board-supervisor"
             )
@@ -64,15 +63,15 @@ class Board:
         self.reachable: dict[str, bool] = {}
 
     async def refresh(self) -> None:
-        paths = {"plant": self.plant_paths, "plc": self.plc_paths}
+        nodes = {"plant": self.plant_paths, "plc": self.plc_paths}
         if "supervisor" in self.links:
-            paths["supervisor"] = self.sup_paths
+            nodes["supervisor"] = self.sup_paths
         for tier, link in self.links.items():
             ok = False
             if await link.ensure():
                 with contextlib.suppress(Exception):
-                    dvs = await link.read(paths[tier])
-                    self.values.update({p: dv.Value.Value for p, dv in zip(paths[tier], dvs, strict=True)})
+                    dvs = await link.read(nodes[tier])
+                    self.values.update({p: dv.Value.Value for p, dv in zip(nodes[tier], dvs, strict=True)})
                     ok = True
             self.reachable[tier] = ok
 
@@ -80,54 +79,50 @@ class Board:
         v = self.values
         site = self.stack.site
         title = f"tanklab · {site.name} · {self.stack.clock} · speed {self.stack.speed:g}"
-        if "Plant.Sim.Time" in v:
-            title += f" · t = {v['Plant.Sim.Time']:.0f} s"
+        if paths.plant.sim_time in v:
+            title += f" · t = {v[paths.plant.sim_time]:.0f} s"
         levels = Table(title=title, expand=True)
         for col in ("tank", "level [m]", "setpoint [m]", "leak"):
             levels.add_column(col)
-        sp_of = {f"T{lp.pv[2:]}": f"PLC.{lp.name}.SP" for lp in site.plc.loops} if site.plc else {}
+        sp_of = {f"T{lp.pv[2:]}": paths.plc.loop(lp.name).sp for lp in site.plc.loops} if site.plc else {}
         for t in self.tanks:
-            level = v.get(f"Plant.{t}.Level")
+            level = v.get(paths.plant.tank(t).level)
             sp = v.get(sp_of[t]) if t in sp_of else None
             bar = _bar(level, site.plant.tank(t).height_max_m)
-            levels.add_row(t, f"{_f(level, 4)} {bar}", _f(sp, 3), _f(v.get(f"Plant.{t}.Leak"), 2))
+            levels.add_row(t, f"{_f(level, 4)} {bar}", _f(sp, 3), _f(v.get(paths.plant.tank(t).leak), 2))
         loops = Table(expand=True)
         for col in ("loop", "mode", "PV [m]", "MV", "flow [m^3/s]", "Kp", "Ki", "Kd", "gains from"):
             loops.add_column(col)
         for lp in site.plc.loops if site.plc else []:
-            p = f"PLC.{lp.name}"
-            mode = v.get(f"{p}.Mode")
-            src = v.get(f"{p}.GainSource")
+            p = paths.plc.loop(lp.name)
+            mode = v.get(p.mode)
+            src = v.get(p.gain_source)
             pump = site.plant.pump(lp.actuator)
             loops.add_row(
                 lp.name,
                 LoopMode(mode).name if mode is not None else "?",
-                _f(v.get(f"{p}.PV"), 4),
-                f"{_g(v.get(f'{p}.MV'))} {pump.unit}",
-                _f(v.get(f"Plant.{lp.actuator}.Flow"), 3, sci=True),
-                _f(v.get(f"{p}.Kp"), 3, sci=True),
-                _f(v.get(f"{p}.Ki"), 3, sci=True),
-                _f(v.get(f"{p}.Kd"), 3, sci=True),
+                _f(v.get(p.pv), 4),
+                f"{_g(v.get(p.mv))} {pump.unit}",
+                _f(v.get(paths.plant.pump(lp.actuator).flow), 3, sci=True),
+                _f(v.get(p.kp), 3, sci=True),
+                _f(v.get(p.ki), 3, sci=True),
+                _f(v.get(p.kd), 3, sci=True),
                 GainSource(src).name if src is not None else "?",
             )
         status = Text()
-        mode = v.get("Supervisor.Mode")
+        mode = v.get(paths.supervisor.mode)
         if mode is not None:
-            ms = v.get("Supervisor.MPC.Status")
+            ms = v.get(paths.supervisor.mpc_status)
             status.append(
                 f"supervisor {SupervisorMode(mode).name}, MPC {MpcStatus(ms).name if ms is not None else '?'}"
             )
-            solve = v.get("Supervisor.MPC.SolveTime")
+            solve = v.get(paths.supervisor.mpc_solve_time)
             if solve is not None:
                 status.append(f" ({1e3 * solve:.2f} ms)")
-        io = "ok" if v.get("PLC.Status.IoHealthy") else "LOST"
-        status.append(f" · PLC scan {v.get('PLC.Status.Scan', '?')}, IO {io}")
-        status.append(f", supervisor {'alive' if v.get('PLC.Supervisor.Alive') else 'not alive'}")
-        alarms = [
-            p.split(".", 2)[2]
-            for p in self.plc_paths
-            if p.startswith(("PLC.Alarms.", "PLC.Interlock.")) and v.get(p)
-        ]
+        io = "ok" if v.get(paths.plc.io_healthy) else "LOST"
+        status.append(f" · PLC scan {v.get(paths.plc.scan, '?')}, IO {io}")
+        status.append(f", supervisor {'alive' if v.get(paths.plc.supervisor_alive) else 'not alive'}")
+        alarms = [p.split(".", 2)[2] for p in self.plc_paths if p.startswith(_ALARM_PREFIXES) and v.get(p)]
         alarm_text = Text(
             "alarms: " + (", ".join(alarms) if alarms else "none"), style="bold red" if alarms else "green"
         )

@@ -36,6 +36,14 @@ BALANCE_ITEMS = ("In", "Out", "Leaked", "Spilled", "Stored", "Error")
 BalanceItem = Literal["In", "Out", "Leaked", "Spilled", "Stored", "Error"]
 AlarmKind = Literal["H", "L", "HH"]
 
+PROBE_PATHS: dict[str, str] = {
+    "plant": "Plant.Sim.Time",
+    "plc": "PLC.Status.Scan",
+    "supervisor": "Supervisor.Mode",
+}
+"""The node a readiness or health probe reads on each tier: one that every site has and that
+the tier serves from its first second (``tankctl.health``, ``tankctl up``)."""
+
 
 def link_status_paths(prefix: str) -> dict[str, str]:
     """Path of each :data:`LINK_STATUS_ITEMS` node under ``prefix`` (``PLC.Status.PlantLink``)."""
@@ -109,6 +117,11 @@ class PlantPaths:
     def lt(tank: str) -> TransmitterPaths:
         """The level transmitter of tank ``tank`` (``T1`` -> ``LT1``)."""
         return TransmitterPaths(tank)
+
+    @staticmethod
+    def transmitter(name: str) -> TransmitterPaths:
+        """Level transmitter ``name`` (``LT1``), the same object as ``lt("T1")``."""
+        return PlantPaths.lt(f"T{name[2:]}")
 
     @staticmethod
     @cache
@@ -210,6 +223,10 @@ class PlcPaths:
     interlock_reset = "PLC.Interlock.Reset"
     io_fault = "PLC.Alarms.IoFault"
     supervisor_lost = "PLC.Alarms.SupervisorLost"
+    alarms_prefix = "PLC.Alarms."
+    """What every alarm node's path starts with (the alarm's name follows it)."""
+    interlocks_prefix = "PLC.Interlock."
+    """What every interlock node's path starts with (``T1HH``, ``Reset`` follow it)."""
 
     @staticmethod
     @cache

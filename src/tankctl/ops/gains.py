@@ -15,6 +15,7 @@ from tankctl.ops.errors import UnreachableError
 from tankctl.ops.options import JsonOpt, StackOptions, stack_command
 from tankctl.ops.run import fail, run
 from tankctl.ops.stack import Stack
+from tanklab import paths
 from tanklab.enums import SupervisorMode
 
 
@@ -55,20 +56,21 @@ def _change_gains(
         await stack.resolve("plc")
         name = stack.loop(loop)
         tags = stack.tags("plc")
-        p = f"PLC.{name}"
+        p = paths.plc.loop(name)
         async with stack.client("plc") as plc:
-            paths = [f"{p}.{g}" for g in ("Kp", "Ki", "Kd", "GainSource")]
-            before = await plc.read(paths)
-            source = show(tags[f"{p}.GainSource"], before[f"{p}.GainSource"])
-            applied = " ".join(f"{g} = {sci(before[f'{p}.{g}'])}" for g in ("Kp", "Ki", "Kd"))
+            before = await plc.read([*p.gains, p.gain_source])
+            source = show(tags[p.gain_source], before[p.gain_source])
+            applied = " ".join(
+                f"{g} = {sci(before[path])}" for g, path in zip(("Kp", "Ki", "Kd"), p.gains, strict=True)
+            )
             if reset:
-                await plc.call(f"{p}.ResetGains", hints=_RESET_HINTS)
+                await plc.call(p.reset_gains, hints=_RESET_HINTS)
                 typer.echo(
                     f"{name}: ResetGains: the configured gains from the next scan on, GainSource FIXED "
                     f"(was {source}: {applied})"
                 )
             elif release:
-                await plc.call(f"{p}.ReleaseGains", hints=_SET_HINTS)
+                await plc.call(p.release_gains, hints=_SET_HINTS)
                 if source == "ENGINEER":
                     typer.echo(
                         f"{name}: ReleaseGains: back under adaptation, gains kept ({applied}), "
@@ -80,9 +82,9 @@ def _change_gains(
                     )
             else:
                 # An omitted gain keeps its applied value: SetGains always sends all three.
-                current = (before[f"{p}.Kp"], before[f"{p}.Ki"], before[f"{p}.Kd"])
+                current = (before[p.kp], before[p.ki], before[p.kd])
                 kp, ki, kd = (float(c) if g is None else g for g, c in zip(new, current, strict=True))
-                await plc.call(f"{p}.SetGains", kp, ki, kd, hints=_SET_HINTS)
+                await plc.call(p.set_gains, kp, ki, kd, hints=_SET_HINTS)
                 typer.echo(
                     f"{name}: SetGains(Kp = {sci(kp)}, Ki = {sci(ki)}, Kd = {sci(kd)}) from the next scan "
                     f"on, GainSource ENGINEER (was {source}); the supervisor is kept off until "
@@ -123,11 +125,16 @@ def gains(
     async def main() -> int:
         await stack.resolve("plc")
         name = stack.loop(loop)
-        p = f"PLC.{name}"
-        plc_paths = [f"{p}.{g}" for g in ("Kp", "Ki", "Kd", "GainSource", "Block", "Mode")]
-        s = f"Supervisor.RLS.{name}"
-        sup_paths = ["Supervisor.Mode"] + [
-            f"{s}.{x}" for x in ("Theta", "CovarianceTrace", "Accepted", "Rejected", "LastReason")
+        p = paths.plc.loop(name)
+        plc_paths = [*p.gains, p.gain_source, p.block, p.mode]
+        s = paths.supervisor.rls(name)
+        sup_paths = [
+            paths.supervisor.mode,
+            s.theta,
+            s.covariance_trace,
+            s.accepted,
+            s.rejected,
+            s.last_reason,
         ]
         async with stack.client("plc") as plc:
             pv = await plc.read(plc_paths)
@@ -144,23 +151,23 @@ def gains(
                 sup_json = {
                     "reachable": True,
                     "url": sup.url,
-                    "mode": enum_name(SupervisorMode, sv["Supervisor.Mode"]),
-                    "theta": plain(sv[f"{s}.Theta"]),
-                    "covariance_trace": plain(sv[f"{s}.CovarianceTrace"]),
-                    "accepted": sv[f"{s}.Accepted"],
-                    "rejected": sv[f"{s}.Rejected"],
-                    "last_reason": sv[f"{s}.LastReason"],
+                    "mode": enum_name(SupervisorMode, sv[paths.supervisor.mode]),
+                    "theta": plain(sv[s.theta]),
+                    "covariance_trace": plain(sv[s.covariance_trace]),
+                    "accepted": sv[s.accepted],
+                    "rejected": sv[s.rejected],
+                    "last_reason": sv[s.last_reason],
                 }
         tags = stack.tags("plc")
         out = {
             "loop": name,
             "url": stack.urls["plc"],
-            "block": pv[f"{p}.Block"],
-            "mode": show(tags[f"{p}.Mode"], pv[f"{p}.Mode"]),
-            "kp": plain(pv[f"{p}.Kp"]),
-            "ki": plain(pv[f"{p}.Ki"]),
-            "kd": plain(pv[f"{p}.Kd"]),
-            "gain_source": show(tags[f"{p}.GainSource"], pv[f"{p}.GainSource"]),
+            "block": pv[p.block],
+            "mode": show(tags[p.mode], pv[p.mode]),
+            "kp": plain(pv[p.kp]),
+            "ki": plain(pv[p.ki]),
+            "kd": plain(pv[p.kd]),
+            "gain_source": show(tags[p.gain_source], pv[p.gain_source]),
             "supervisor": sup_json,
         }
         if as_json:

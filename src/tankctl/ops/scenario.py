@@ -18,6 +18,7 @@ from tankctl.ops.options import StackOptions, stack_command
 from tankctl.ops.run import StopOnSignal, fail, run
 from tankctl.ops.stack import TIERS, Stack
 from tankctl.ops.writes import apply_loop_mode, write_and_tell
+from tanklab import paths
 from tanklab.config import load_site
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
 from tanklab.errors import TanklabError
@@ -92,31 +93,31 @@ class LiveEvents:
         self.clients = clients
 
     async def setpoint(self, loop: str, value_m: float) -> list[str]:
-        return [await write_and_tell(self.clients["plc"], f"PLC.{loop}.SP", value_m)]
+        return [await write_and_tell(self.clients["plc"], paths.plc.loop(loop).sp, value_m)]
 
     async def leak(self, tank: str, opening: float) -> list[str]:
-        return [await write_and_tell(self.clients["plant"], f"Plant.{tank}.Leak", opening)]
+        return [await write_and_tell(self.clients["plant"], paths.plant.tank(tank).leak, opening)]
 
     async def valve(self, valve: str, opening: float) -> list[str]:
-        return [await write_and_tell(self.clients["plant"], f"Plant.{valve}.Opening", opening)]
+        return [await write_and_tell(self.clients["plant"], paths.plant.valve_opening(valve), opening)]
 
     async def disturbance(self, tank: str, flow_m3_s: float) -> list[str]:
-        return [await write_and_tell(self.clients["plant"], f"Plant.{tank}.Disturbance", flow_m3_s)]
+        return [await write_and_tell(self.clients["plant"], paths.plant.tank(tank).disturbance, flow_m3_s)]
 
     async def fault(self, transmitter: str, fault: SensorFault, value: float) -> list[str]:
         # Its size first, then its kind, so the fault starts with the right value.
-        i = transmitter[2:]
+        lt = paths.plant.transmitter(transmitter)
         plant = self.clients["plant"]
         return [
-            await write_and_tell(plant, f"Plant.LT{i}.FaultValue", value),
-            await write_and_tell(plant, f"Plant.LT{i}.Fault", int(fault)),
+            await write_and_tell(plant, lt.fault_value, value),
+            await write_and_tell(plant, lt.fault, int(fault)),
         ]
 
     async def loop_mode(self, loop: str, mode: LoopMode, mv_percent: float | None) -> list[str]:
         return await apply_loop_mode(self.clients["plc"], loop, mode, mv_percent)
 
     async def supervisor_mode(self, mode: SupervisorMode) -> list[str]:
-        return [await write_and_tell(self.clients["supervisor"], "Supervisor.Mode", int(mode))]
+        return [await write_and_tell(self.clients["supervisor"], paths.supervisor.mode, int(mode))]
 
 
 def _initial_events(scenario: Scenario) -> list[Event]:
@@ -234,9 +235,9 @@ async def _play(
     target = LiveEvents(clients)
 
     async def now() -> float:
-        t = (await plant.read(["Plant.Sim.Time"]))["Plant.Sim.Time"]
+        t = (await plant.read([paths.plant.sim_time]))[paths.plant.sim_time]
         if not isinstance(t, float):
-            raise UnreachableError("plant", plant.url, "Plant.Sim.Time did not read Good")
+            raise UnreachableError("plant", plant.url, f"{paths.plant.sim_time} did not read Good")
         return t
 
     t0 = await now()
@@ -267,7 +268,7 @@ async def _play(
                     )
                 wait = DEFAULT_POLL_S
                 if speed_from_plant:
-                    speed = (await plant.read(["Plant.Sim.Speed"]))["Plant.Sim.Speed"]
+                    speed = (await plant.read([paths.plant.sim_speed]))[paths.plant.sim_speed]
                     if isinstance(speed, float) and speed > 0:  # 0 in lock-step: keep polling
                         wait = min(max((at_s - t) / speed, DEFAULT_POLL_S), 1.0)
                 with contextlib.suppress(TimeoutError):

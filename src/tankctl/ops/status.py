@@ -16,16 +16,17 @@ from tankctl.ops.errors import UnreachableError
 from tankctl.ops.options import JsonOpt, StackOptions, stack_command
 from tankctl.ops.run import run
 from tankctl.ops.stack import TIERS, Stack
+from tanklab import paths
 from tanklab.tags import Tier
 
 
 async def _read_tier(stack: Stack, tier: Tier) -> dict[str, Any] | UnreachableError:
     """Every contract variable of a tier in one Read, or why the tier did not answer."""
     client = stack.client(tier)
-    paths = [t.path for t in client.tags.values() if t.kind == "variable"]
+    nodes = [t.path for t in client.tags.values() if t.kind == "variable"]
     try:
         async with client:
-            return await client.read(paths)
+            return await client.read(nodes)
     except UnreachableError as e:
         return e
 
@@ -35,33 +36,39 @@ def _plant_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
     tags = stack.tags("plant")
     tanks = {}
     for t in site.tank_names:
-        i = t[1:]
+        tank, lt = paths.plant.tank(t), paths.plant.lt(t)
         tanks[t] = {
-            "level_m": plain(v[f"Plant.{t}.Level"]),
-            "lt_pv_m": plain(v[f"Plant.LT{i}.PV"]),
-            "lt_fault": show(tags[f"Plant.LT{i}.Fault"], v[f"Plant.LT{i}.Fault"]),
-            "lt_fault_value": plain(v[f"Plant.LT{i}.FaultValue"]),
-            "leak": plain(v[f"Plant.{t}.Leak"]),
-            "disturbance_m3_s": plain(v[f"Plant.{t}.Disturbance"]),
-            "lsh": v[f"Plant.{t}.LSH"],
-            "lsl": v[f"Plant.{t}.LSL"],
+            "level_m": plain(v[tank.level]),
+            "lt_pv_m": plain(v[lt.pv]),
+            "lt_fault": show(tags[lt.fault], v[lt.fault]),
+            "lt_fault_value": plain(v[lt.fault_value]),
+            "leak": plain(v[tank.leak]),
+            "disturbance_m3_s": plain(v[tank.disturbance]),
+            "lsh": v[tank.lsh],
+            "lsl": v[tank.lsl],
         }
     return {
-        "model_time_s": plain(v["Plant.Sim.Time"]),
-        "speed": plain(v["Plant.Sim.Speed"]),
-        "watchdog": v["Plant.Sim.Watchdog"],
+        "model_time_s": plain(v[paths.plant.sim_time]),
+        "speed": plain(v[paths.plant.sim_speed]),
+        "watchdog": v[paths.plant.sim_watchdog],
         "tanks": tanks,
-        "valves": {n: {"opening": plain(v[f"Plant.{n}.Opening"])} for n in site.valve_names},
+        "valves": {n: {"opening": plain(v[paths.plant.valve_opening(n)])} for n in site.valve_names},
         "pumps": {
             p.name: {
-                "command": plain(v[f"Plant.{p.name}.Command"]),
+                "command": plain(v[paths.plant.pump(p.name).command]),
                 "unit": p.unit,
-                "flow_m3_s": plain(v[f"Plant.{p.name}.Flow"]),
+                "flow_m3_s": plain(v[paths.plant.pump(p.name).flow]),
             }
             for p in site.plant.pumps
         },
-        "balance_error_m3": plain(v["Plant.Balance.Error"]),
+        "balance_error_m3": plain(v[paths.plant.balance("Error")]),
     }
+
+
+def _under(prefix: str, variables: list[str], v: dict[str, Any]) -> dict[str, Any]:
+    """The values of the variables whose path starts with ``prefix``, keyed by the rest of the
+    path (``PLC.Alarms.T1HH`` under ``PLC.Alarms.`` -> ``T1HH``), in the contract's order."""
+    return {path.removeprefix(prefix): v[path] for path in variables if path.startswith(prefix)}
 
 
 def _plc_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
@@ -69,35 +76,36 @@ def _plc_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
     tags = stack.tags("plc")
     loops = {}
     for name in site.loop_names:
-        p = f"PLC.{name}"
-        mv_tag = tags[f"{p}.MV"]
+        p = paths.plc.loop(name)
+        mv_tag = tags[p.mv]
         loops[name] = {
-            "block": v[f"{p}.Block"],
-            "mode": show(tags[f"{p}.Mode"], v[f"{p}.Mode"]),
-            "sp_m": plain(v[f"{p}.SP"]),
-            "pv_m": plain(v[f"{p}.PV"]),
-            "mv": plain(v[f"{p}.MV"]),
+            "block": v[p.block],
+            "mode": show(tags[p.mode], v[p.mode]),
+            "sp_m": plain(v[p.sp]),
+            "pv_m": plain(v[p.pv]),
+            "mv": plain(v[p.mv]),
             "mv_unit": mv_tag.unit,
-            "mv_percent": plain(percent_of(v[f"{p}.MV"], mv_tag.eu_range)),
-            "manual_mv": plain(v[f"{p}.ManualMV"]),
-            "kp": plain(v[f"{p}.Kp"]),
-            "ki": plain(v[f"{p}.Ki"]),
-            "kd": plain(v[f"{p}.Kd"]),
-            "gain_source": show(tags[f"{p}.GainSource"], v[f"{p}.GainSource"]),
+            "mv_percent": plain(percent_of(v[p.mv], mv_tag.eu_range)),
+            "manual_mv": plain(v[p.manual_mv]),
+            "kp": plain(v[p.kp]),
+            "ki": plain(v[p.ki]),
+            "kd": plain(v[p.kd]),
+            "gain_source": show(tags[p.gain_source], v[p.gain_source]),
         }
     variables = [path for path, tag in tags.items() if tag.kind == "variable"]
-    alarms = {path.split(".", 2)[2]: v[path] for path in variables if path.startswith("PLC.Alarms.")}
-    interlocks = {path.split(".", 2)[2]: v[path] for path in variables if path.startswith("PLC.Interlock.")}
+    alarms = _under(paths.plc.alarms_prefix, variables, v)
+    interlocks = _under(paths.plc.interlocks_prefix, variables, v)
+    plc = paths.plc
     return {
-        "scan": v["PLC.Status.Scan"],
-        "model_time_s": plain(v["PLC.Status.ModelTime"]),
-        "io_healthy": v["PLC.Status.IoHealthy"],
-        "overruns": v["PLC.Status.Overruns"],
-        "last_scan_duration_s": plain(v["PLC.Status.LastScanDuration"]),
-        "supervisor_alive": v["PLC.Supervisor.Alive"],
+        "scan": v[plc.scan],
+        "model_time_s": plain(v[plc.model_time]),
+        "io_healthy": v[plc.io_healthy],
+        "overruns": v[plc.overruns],
+        "last_scan_duration_s": plain(v[plc.last_scan_duration]),
+        "supervisor_alive": v[plc.supervisor_alive],
         "loops": loops,
         "io": {
-            f"LT{t[1:]}": {"pv_m": plain(v[f"PLC.IO.LT{t[1:]}.PV"]), "good": v[f"PLC.IO.LT{t[1:]}.Good"]}
+            paths.plant.lt(t).name: {"pv_m": plain(v[plc.io(t).pv]), "good": v[plc.io(t).good]}
             for t in site.tank_names
         },
         "alarms": alarms,
@@ -109,16 +117,17 @@ def _plc_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
 
 def _supervisor_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
     tags = stack.tags("supervisor")
+    sup = paths.supervisor
     return {
-        "mode": show(tags["Supervisor.Mode"], v["Supervisor.Mode"]),
-        "cycle": v["Supervisor.Cycle"],
-        "plc_connected": v["Supervisor.PlcConnected"],
+        "mode": show(tags[sup.mode], v[sup.mode]),
+        "cycle": v[sup.cycle],
+        "plc_connected": v[sup.plc_connected],
         "mpc": {
-            "status": show(tags["Supervisor.MPC.Status"], v["Supervisor.MPC.Status"]),
-            "solve_time_s": plain(v["Supervisor.MPC.SolveTime"]),
-            "iterations": v["Supervisor.MPC.Iterations"],
-            "failures": v["Supervisor.MPC.Failures"],
-            "horizon": v["Supervisor.MPC.Horizon"],
+            "status": show(tags[sup.mpc_status], v[sup.mpc_status]),
+            "solve_time_s": plain(v[sup.mpc_solve_time]),
+            "iterations": v[sup.mpc_iterations],
+            "failures": v[sup.mpc_failures],
+            "horizon": v[sup.mpc_horizon],
         },
     }
 

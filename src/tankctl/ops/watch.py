@@ -22,6 +22,7 @@ from tankctl.ops.errors import UnreachableError, UsageError
 from tankctl.ops.options import StackOptions, stack_command
 from tankctl.ops.run import StopOnSignal, check_usage, run
 from tankctl.ops.stack import Stack
+from tanklab import paths
 from tanklab.clock import Deadlines, MonotonicClock, sleep_or_stop
 
 TREND_SAMPLES = 60
@@ -178,22 +179,22 @@ async def _sample(trend: _Trend, plant: _Source, plc: _Source | None) -> _Sample
     if pv is None:
         notes.append(f"plant unreachable ({plant.reason}), retrying")
     else:
-        levels = {t: pv[f"Plant.{t}.Level"] for t in trend.tanks}
-        model_time = pv["Plant.Sim.Time"]
+        levels = {t: pv[paths.plant.tank(t).level] for t in trend.tanks}
+        model_time = pv[paths.plant.sim_time]
     loops: dict[str, dict[str, Any]] = {}
     if plc is not None and cv is None:
         notes.append(f"plc unreachable ({plc.reason}), retrying")
     elif cv is not None:
         tags = stack.tags("plc")
         for name in stack.site.loop_names:
-            p = f"PLC.{name}"
+            p = paths.plc.loop(name)
             loops[name] = {
-                "sp": cv[f"{p}.SP"],
-                "mode": show(tags[f"{p}.Mode"], cv[f"{p}.Mode"]),
-                "mv_percent": percent_of(cv[f"{p}.MV"], tags[f"{p}.MV"].eu_range),
+                "sp": cv[p.sp],
+                "mode": show(tags[p.mode], cv[p.mode]),
+                "mv_percent": percent_of(cv[p.mv], tags[p.mv].eu_range),
             }
         if pv is None:  # the plant is away: show the levels the PLC last read
-            levels = {t: cv.get(f"PLC.IO.LT{t[1:]}.PV") for t in trend.tanks}
+            levels = {t: cv.get(paths.plc.io(t).pv) for t in trend.tanks}
     return _Sample(model_time, levels, loops, notes)
 
 
@@ -227,12 +228,14 @@ def watch(
         await stack.resolve("plant", "plc")
         site = stack.site
         plant = _Source(
-            stack.client("plant"), ["Plant.Sim.Time"] + [f"Plant.{t}.Level" for t in site.tank_names]
+            stack.client("plant"),
+            [paths.plant.sim_time] + [paths.plant.tank(t).level for t in site.tank_names],
         )
         plc = None
         if stack.has("plc"):
-            paths = [f"PLC.{n}.{x}" for n in site.loop_names for x in ("SP", "MV", "Mode")]
-            plc = _Source(stack.client("plc"), paths + [f"PLC.IO.LT{t[1:]}.PV" for t in site.tank_names])
+            loops = [paths.plc.loop(n) for n in site.loop_names]
+            nodes = [path for lp in loops for path in (lp.sp, lp.mv, lp.mode)]
+            plc = _Source(stack.client("plc"), nodes + [paths.plc.io(t).pv for t in site.tank_names])
         # Both tiers must answer at the start; later losses are shown and retried.
         for src in (plant, plc):
             if src is not None:

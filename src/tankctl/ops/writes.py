@@ -14,6 +14,7 @@ from tankctl.ops.errors import UsageError
 from tankctl.ops.options import StackOptions, stack_command
 from tankctl.ops.run import check_usage, run
 from tankctl.ops.stack import Stack
+from tanklab import paths
 from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.tags import Tier
 
@@ -50,7 +51,7 @@ def setpoint(
 ) -> None:
     """Write a loop's setpoint, in m, to the PLC (PLC.LIC{j}.SP; the PLC range-checks it)."""
     stack = options.stack()
-    _write_one(stack, "plc", lambda: f"PLC.{stack.loop(loop)}.SP", value)
+    _write_one(stack, "plc", lambda: paths.plc.loop(stack.loop(loop)).sp, value)
 
 
 def _opening(text: str, what: str, words: Mapping[str, float]) -> float:
@@ -78,7 +79,7 @@ def leak(
     """Open a tank's leak valve to the drain (Plant.T{i}.Leak, 0..1); 'off' closes it."""
     stack = options.stack()
     value = check_usage(lambda: _opening(opening, "the leak opening", {"off": 0.0}))
-    _write_one(stack, "plant", lambda: f"Plant.{stack.tank(tank)}.Leak", value)
+    _write_one(stack, "plant", lambda: paths.plant.tank(stack.tank(tank)).leak, value)
 
 
 @stack_command
@@ -93,7 +94,7 @@ def valve(
     """Set a connecting or outlet valve's opening (Plant.V{mn}.Opening, 0..1): a clog."""
     stack = options.stack()
     value = check_usage(lambda: _opening(opening, "the valve opening", {"open": 1.0, "closed": 0.0}))
-    _write_one(stack, "plant", lambda: f"Plant.{stack.valve(name)}.Opening", value)
+    _write_one(stack, "plant", lambda: paths.plant.valve_opening(stack.valve(name)), value)
 
 
 def _loop_mode(text: str) -> LoopMode:
@@ -120,7 +121,7 @@ async def apply_loop_mode(plc: TierClient, loop: str, mode: LoopMode, percent: f
     lost; written after it, it steps the output from where the loop was.
     """
     lines: list[str] = []
-    mode_path, mv_path = f"PLC.{loop}.Mode", f"PLC.{loop}.ManualMV"
+    mode_path, mv_path = paths.plc.loop(loop).mode, paths.plc.loop(loop).manual_mv
     lines.append(await write_and_tell(plc, mode_path, int(mode)))
     if percent is not None:
         rng = await plc.eu_range(mv_path) or plc.tags[mv_path].eu_range
@@ -178,6 +179,6 @@ def mode(
 
     def path() -> str:
         stack.require("supervisor")
-        return "Supervisor.Mode"
+        return paths.supervisor.mode
 
     _write_one(stack, "supervisor", path, int(new))
