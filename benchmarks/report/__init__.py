@@ -12,7 +12,8 @@ the whole document). The sections of other modules (robustness, security, cli, r
 in as :attr:`Report.extra`, their goals as :attr:`Report.extra_goals`.
 """
 
-from benchmarks.report.base import GOAL_NP, GOAL_NP_LONG, REFERENCE_SPEED_MS, Report
+from benchmarks.common import REFERENCE_SPEED_MS
+from benchmarks.report.base import GOAL_NP, GOAL_NP_LONG, Report
 from benchmarks.report.goals import goals
 from benchmarks.report.render import render
 

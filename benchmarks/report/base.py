@@ -13,10 +13,6 @@ from benchmarks.mpc import HorizonResult, Series
 from benchmarks.stack import StackResults
 
 GOAL_NP = 40
-#: The machine speed reference [ms] the MPC's step-time goals are stated for (issue #22): the
-#: fastest :func:`benchmarks.common.speed_reference` recorded on this machine (an idle run).
-#: A run's MPC times are scaled by ``REFERENCE_SPEED_MS / speed at the run's start``.
-REFERENCE_SPEED_MS = 11.2
 GOAL_NP_LONG = 160
 
 

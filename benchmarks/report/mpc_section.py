@@ -32,7 +32,7 @@ def mpc_section(rep: Report) -> list[str]:
         "updates f and the bounds and solves hot-started from the previous step's working set. The "
         "other backend, OSQP, runs its tolerance ladder 1e-4 / 1e-5 / 1e-6 with polish, warm-started "
         "from the previous solution shifted by one sample. Goals on step times are stated at the "
-        "reference machine speed (`REFERENCE_SPEED_MS` in benchmarks/report.py): a run's times are "
+        "reference machine speed (`REFERENCE_SPEED_MS` in benchmarks/common.py): a run's times are "
         "scaled by that over the run's own speed reference.",
         "",
         "### 1a. The controller alone",

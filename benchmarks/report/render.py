@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from benchmarks.common import Summary, fmt
+from benchmarks.common import REFERENCE_SPEED_MS, Summary, fmt
 from benchmarks.mpc import OURS
 from benchmarks.report.base import Report, find, in_ms, table
 from benchmarks.report.cosim_section import cosim_section
@@ -42,10 +42,21 @@ def _header(rep: Report) -> list[str]:
     start, end = rep.speed_reference_ms
     if math.isfinite(start):
         lines += [
-            f"Machine speed reference (`benchmarks.common.speed_reference`, a fixed workload shaped "
-            f"like a co-simulation scan; lower is faster): {fmt(start)} ms at the start of the run, "
-            f"{fmt(end)} ms at the end. This machine's speed drifts by up to 40 % within a day: "
-            "compare runs, and read goals near their limits, with this number beside them.",
+            f"Machine speed reference (`benchmarks.common.speed_reference`, a fixed CPU-bound "
+            f"workload shaped like a co-simulation scan; lower is faster): {fmt(start)} ms at the "
+            f"start of the run, {fmt(end)} ms at the end. This machine is shared and its speed "
+            "drifts, by up to 40 % within a day and by 2x between days (8.6 ms one day, 18.6 ms "
+            "another), so every goal on a time is stated at the reference speed, "
+            f"{fmt(REFERENCE_SPEED_MS)} ms (`REFERENCE_SPEED_MS` in benchmarks/common.py; "
+            "docs/decisions/0036-goals-at-reference-speed.md): a time is scaled by "
+            f"{fmt(REFERENCE_SPEED_MS)} ms / the speed reference, a real-time factor by the speed "
+            f"reference / {fmt(REFERENCE_SPEED_MS)} ms, with the speed reference measured closest "
+            "to it (this run's at its start; section 9 measures its own). The MPC and "
+            "co-simulation goals run in one process, like the reference; the lock-step and "
+            "operator-command goals span several processes and also wait on OPC UA round trips "
+            "and the scheduler, which the reference does not measure, so scaling them is an "
+            "approximation: the goals table gives the measured number beside the scaled one, and "
+            "the verdict is on the scaled one.",
             "",
         ]
     return lines
