@@ -29,7 +29,18 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from benchmarks import accuracy, cli, cosim, mpc, report, restarts, robustness, security, stack
+from benchmarks import (
+    accuracy,
+    cli,
+    cosim,
+    mpc,
+    report,
+    restarts,
+    restarts_report,
+    robustness,
+    security,
+    stack,
+)
 from benchmarks.common import ROOT, machine, speed_reference, versions
 from tanklab_io.threads import limit_blas_threads
 
@@ -207,16 +218,16 @@ def main(argv: list[str] | None = None) -> int:
 
     def run_restarts() -> None:
         _log("restarts (each tier SIGKILLed under tankctl up at speed 1):")
-        n = 5 if args.quick else restarts.RESTARTS
+        n = 5 if args.quick else restarts_report.RESTARTS
         result = asyncio.run(restarts.run(ROOT / "var" / "bench-restarts", _log, n))
-        rep.extra_goals += restarts.goals(result)
+        rep.extra_goals += restarts_report.goals(result)
         rep.errors += [f"restarts: {e}" for e in result.errors]
         _log("restarts, the PLC alone with every pump's watchdog safe state hold:")
         hold = asyncio.run(
             restarts.run(ROOT / "var" / "bench-restarts-hold", _log, n, tiers=("plc",), safe_state="hold")
         )
         rep.errors += [f"restarts (hold): {e}" for e in hold.errors]
-        rep.extra.append(restarts.markdown(result).rstrip() + "\n\n" + restarts.markdown(hold))
+        rep.extra.append(restarts_report.markdown(result).rstrip() + "\n\n" + restarts_report.markdown(hold))
 
     section("security", run_security)
     section("cli", run_cli)

@@ -1,4 +1,4 @@
-"""The restart benchmark's pure parts and its /proc process count (benchmarks.restarts, .procs).
+"""The restart benchmark's pure parts and its /proc process count (benchmarks.restarts_report, .procs).
 
 The measurement itself runs real stacks for half an hour (``python -m benchmarks.run --only
 restarts``); here: which nodes it compares, how it scores an estimate's move, how it judges the
@@ -10,7 +10,15 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from benchmarks.restarts import Restart, RestartsResult, box_change, goals, markdown, settings_paths
+from benchmarks.restarts_report import (
+    Restart,
+    RestartsResult,
+    box_change,
+    goals,
+    markdown,
+    plc_phases,
+    settings_paths,
+)
 
 from helpers import ROOT, free_port, stop_process, wait_until
 from tanklab.config import load_site
@@ -92,8 +100,6 @@ async def test_tankctl_pids_counts_the_processes_named_by_their_port() -> None:
 
 def test_a_plc_restart_gap_is_split_into_phases_from_its_log() -> None:
     from datetime import datetime
-
-    from benchmarks.restarts import plc_phases
 
     killed = datetime(2026, 12, 1, 23, 44, 28, 500000).timestamp()
     log = "\n".join(
