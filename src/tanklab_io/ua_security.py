@@ -20,6 +20,8 @@ Server side (:func:`secure_server`)
       (~70 ms) runs in a worker thread before asyncua's synchronous user lookup, so logins never
       hold up the tier's event loop.
     * Roles are checked per node by :class:`tanklab_io.ua.WriteGuard` and the method adapter.
+    * Event filters: OfType matches the type and its subtypes
+      (:func:`tanklab_io.conditions.oftype.match_event_subtypes`; asyncua matches the exact type).
     * Audit: every write and call (accepted or refused) and every refused session activation
       goes to the tier's :class:`~tanklab_io.audit.AuditLog` and is raised as a
       ``TanklabAuditEventType`` event on the Server object.
@@ -64,6 +66,7 @@ from tanklab.errors import SecurityError
 from tanklab.handlers import check_handlers
 from tanklab.tags import APPLICATION_URIS, NAMESPACE_URI, Role, Tag, tags_by_path
 from tanklab_io.audit import AuditLog, AuditRecord
+from tanklab_io.conditions.oftype import match_event_subtypes
 from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.pki import Pki
 from tanklab_io.ua import (
@@ -567,6 +570,9 @@ async def secure_server(
     server.audit = audit
     server.audit_events = AuditEvents()
     await server.audit_events.install(server, audit)
+    # Event filters' OfType matches subtypes (asyncua: the exact type only), so a client
+    # filtering on AlarmConditionType receives the tier's level and off-normal alarms.
+    match_event_subtypes(server)
     return audit
 
 
