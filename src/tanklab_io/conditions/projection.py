@@ -27,7 +27,7 @@ import logging
 import os
 from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, ClassVar
 
 from asyncua import Server, ua
 from asyncua.common.event_objects import RefreshEndEvent, RefreshStartEvent
@@ -76,6 +76,8 @@ ToUtc = Callable[[float], datetime]
 
 _O = ua.ObjectIds
 _SERVER = ua.NodeId(_O.Server)
+_NULL = ua.Variant()
+"""The field of a clause the condition has no child for (shared: never changed)."""
 
 TYPE_METHODS: dict[int, Method] = {
     _O.ConditionType_Enable: Method.ENABLE,
@@ -132,14 +134,51 @@ def initial_snapshot(definition: AlarmDefinition) -> ConditionSnapshot:
     )
 
 
+class ConditionEventFields(Event):
+    """A condition's event as a subscription reads it: every value by its field name, and the
+    ConditionId (selected with AttributeId NodeId and an empty browse path).
+
+    asyncua's :meth:`Event.to_event_fields` deep-copies every selected value for every
+    monitored item and turns each select clause into a name again; with the ~100 clauses of a
+    full AlarmConditionType filter that was most of :meth:`UaConditions.publish`'s time. Here
+    the Variants are built once per event and never changed after (nothing mutates them, so
+    the items can share them), and each clause list's names are worked out once.
+    """
+
+    _NAMES: ClassVar[dict[int, tuple[list[ua.SimpleAttributeOperand], list[str]]]] = {}
+
+    def __init__(self, node: ConditionNode, values: Mapping[str, ua.Variant]) -> None:
+        self._variants = dict(values)
+        self._variants["NodeId"] = ua.Variant(node.condition_id, ua.VariantType.NodeId)
+        super().__init__(_SERVER)
+        for name, value in self._variants.items():
+            self.add_property(name, value.Value, value.VariantType)
+
+    @classmethod
+    def _names(cls, clauses: list[ua.SimpleAttributeOperand]) -> list[str]:
+        cached = cls._NAMES.get(id(clauses))
+        if cached is not None and cached[0] is clauses and len(cached[1]) == len(clauses):
+            return cached[1]
+        names = [
+            Event.browse_path_to_attribute_name(c.BrowsePath)
+            if c.BrowsePath
+            else ua.AttributeIds(c.AttributeId).name
+            for c in clauses
+        ]
+        if len(cls._NAMES) > 10_000:  # monitored items come and go: keep the cache bounded
+            cls._NAMES.clear()
+        cls._NAMES[id(clauses)] = (clauses, names)
+        return names
+
+    def to_event_fields(self, select_clauses: list[ua.SimpleAttributeOperand]) -> list[ua.Variant]:
+        """The selected fields, in order (a field the condition does not have is null)."""
+        get = self._variants.get
+        return [get(name, _NULL) for name in self._names(select_clauses)]
+
+
 def event_object(node: ConditionNode, values: Mapping[str, ua.Variant]) -> Event:
-    """The event a subscription's select clauses read: every value by its field name, and the
-    ConditionId (selected with AttributeId NodeId and an empty browse path)."""
-    event = Event(_SERVER)
-    for name, value in values.items():
-        event.add_property(name, value.Value, value.VariantType)
-    event.add_property("NodeId", node.condition_id, ua.VariantType.NodeId)
-    return event
+    """The event of ``node`` carrying ``values`` (:class:`ConditionEventFields`)."""
+    return ConditionEventFields(node, values)
 
 
 def _system_event(kind: type[Event], now: datetime) -> Event:
