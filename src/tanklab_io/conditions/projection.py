@@ -69,8 +69,10 @@ log = logging.getLogger(__name__)
 
 Handler = Callable[[ConditionCall], tuple[CallStatus, Sequence[ConditionEvent]]]
 """The alarm core's answer to a call: its status and the events the call caused."""
-Retained = Callable[[], Sequence[ConditionSnapshot]]
-"""The conditions of interest now (Retain true), for ConditionRefresh."""
+Retained = Callable[[], Sequence[ConditionSnapshot | ConditionEvent]]
+"""The conditions of interest now (Retain true), for ConditionRefresh: snapshots (re-sent with
+the EventId this projection last published for them) or the core's latest events (re-sent with
+their own EventId and time)."""
 ToUtc = Callable[[float], datetime]
 """The tier's model time [s] -> its UTC stamp."""
 
@@ -419,11 +421,15 @@ class UaConditions:
             # Part 9 4.5: the refresh brackets go to every event item of the subscription,
             # whatever its where clause, or the client cannot tell when the refresh ends.
             await send(mid, start, filtered=False)
-        for snapshot in self._retained():
+        for item in self._retained():
+            latest: ConditionEvent | None
+            if isinstance(item, ConditionEvent):
+                snapshot, latest = item.condition, item
+            else:
+                snapshot, latest = item, self._latest.get(item.name)
             node = self.nodes.get(snapshot.name)
             if node is None:
                 continue
-            latest = self._latest.get(snapshot.name)
             event_id = latest.event_id if latest is not None else b""
             t_s = latest.t_s if latest is not None else snapshot.time_s
             event = event_object(node, snapshot_values(node, snapshot, event_id, self._to_utc(t_s), now))
