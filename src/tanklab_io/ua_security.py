@@ -70,6 +70,7 @@ from tanklab_io.conditions.oftype import match_event_subtypes
 from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.pki import Pki
 from tanklab_io.ua import (
+    CURRENT_SESSION,
     CURRENT_USER,
     MethodHandler,
     Publisher,
@@ -355,6 +356,7 @@ class _SecureProcessor(UaProcessor):
         if typeid == _ACTIVATE_SESSION:
             await self._preverify(body)
         token = CURRENT_USER.set(self.session.user if self.session is not None else None)
+        session_token = CURRENT_SESSION.set(self.session.session_id if self.session is not None else None)
         try:
             return await super()._process_message(typeid, requesthdr, seqhdr, body)
         except ServiceError as e:
@@ -368,6 +370,7 @@ class _SecureProcessor(UaProcessor):
                 )
             raise
         finally:
+            CURRENT_SESSION.reset(session_token)
             CURRENT_USER.reset(token)
 
 

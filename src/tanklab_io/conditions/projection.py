@@ -63,7 +63,7 @@ from tanklab_io.conditions.nodes import (
     standard_input_arguments,
 )
 from tanklab_io.conditions.oftype import match_event_subtypes
-from tanklab_io.ua import CURRENT_USER, who
+from tanklab_io.ua import CURRENT_SESSION, CURRENT_USER, who
 
 log = logging.getLogger(__name__)
 
@@ -393,7 +393,9 @@ class UaConditions:
         if any(not isinstance(a, ua.Variant) or a.VariantType != ua.VariantType.UInt32 for a in args):
             return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
         sub = self.server.iserver.subscription_service.subscriptions.get(args[0].Value)
-        if sub is None:
+        session = CURRENT_SESSION.get()
+        if sub is None or (session is not None and sub.session_id != session):
+            # Part 9 5.5.7: the subscription must be the calling session's.
             return ua.StatusCode(ua.StatusCodes.BadSubscriptionIdInvalid)
         items = sub.monitored_item_srv
         targets = {mid: nid for nid, mids in items._monitored_events.items() for mid in mids}
