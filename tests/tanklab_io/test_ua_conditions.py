@@ -16,16 +16,21 @@ condition DISABLED, shelving past the maximum SHELVING_TIME_OUT_OF_RANGE, ...): 
 
 from __future__ import annotations
 
+import asyncio
 import itertools
+import json
+import os
+import shutil
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 from typing import Any
 
 import pytest
 from asyncua import Client, ua
 
-from helpers import ROOT, free_port, secure, server_security, wait_until
+from helpers import ROOT, free_port, secure, server_security, session_home, wait_until
 from tanklab import paths
 from tanklab.alarms.model import (
     AlarmDefinition,
@@ -43,6 +48,7 @@ from tanklab.config import load_site
 from tanklab.tags import NAMESPACE_URI, Tag, plc_tags
 from tanklab_io.audit import read_audit
 from tanklab_io.conditions import UaConditions, initial_snapshot
+from tanklab_io.pki import trust
 from tanklab_io.ua import MethodHandler, WriteHandler
 from tanklab_io.ua_security import TierServer, start_tier_server
 
@@ -684,3 +690,68 @@ async def test_of_type_on_a_base_type_receives_subtype_events(rig: Rig) -> None:
             lambda: len(modified.items) == 1, 5.0, what="the trip (OffNormal is a Discrete) only"
         )
         assert modified.values("EventId") == [trip.event_id]
+
+
+NODE = shutil.which("node")
+NODE_DIR = ROOT / "tests" / "node"
+
+
+async def _node_alarms(url: str, pki_dir: Path, user: str, condition: str) -> dict[str, Any]:
+    """Run tests/node/alarms.mjs once: its JSON result line plus ``rc`` (its exit code)."""
+    assert NODE is not None
+    password = f"{user}-test-password"  # helpers.TEST_PASSWORDS
+    proc = await asyncio.create_subprocess_exec(
+        NODE,
+        str(NODE_DIR / "alarms.mjs"),
+        url,
+        str(pki_dir),
+        user,
+        condition,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+        cwd=NODE_DIR,
+        env=dict(os.environ, TANKLAB_PASSWORD=password),
+    )
+    try:
+        out, err = await asyncio.wait_for(proc.communicate(), 120)
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    lines = [ln for ln in out.decode().splitlines() if ln.startswith("RESULT ")]
+    assert len(lines) == 1, (
+        f"node alarms.mjs: no result line (exit {proc.returncode}): {err.decode()[-2000:]}"
+    )
+    result: dict[str, Any] = json.loads(lines[0].removeprefix("RESULT "))
+    result["rc"] = proc.returncode
+    return result
+
+
+@pytest.mark.skipif(NODE is None, reason="node is not installed (node-opcua needs node 20+ and `make tools`)")
+async def test_a_node_opcua_client_refreshes_and_acknowledges(rig: Rig, tmp_path: Path) -> None:
+    """node-opcua (pinned by tests/node/package-lock.json): OfType AlarmConditionType on the
+    Server object, ConditionRefresh, then its ``acknowledgeCondition`` with the refreshed
+    event's ConditionId and EventId (it finds the condition's own Acknowledge method)."""
+    stamp = NODE_DIR / "node_modules" / ".package-lock.json"
+    if not stamp.is_file() or stamp.stat().st_mtime < (NODE_DIR / "package-lock.json").stat().st_mtime:
+        pytest.fail(f"{NODE_DIR}/node_modules is missing or older than package-lock.json: run `make tools`")
+    ev = rig.core.activate("T1Level", LimitState.HIGH)
+    await rig.conditions.publish([ev])
+    pki = session_home().pki
+    client_pki = tmp_path / "node-opcua-pki"
+    for sub, file in (("certs", pki.ca_cert_pem), ("crl", pki.crl_pem)):
+        (client_pki / "trusted" / sub).mkdir(parents=True, exist_ok=True)
+        shutil.copy(file, client_pki / "trusted" / sub / file.name)
+    first = await _node_alarms(rig.url, client_pki, "operator", "T1Level")  # makes its certificate
+    assert first["ok"] is False and "BadCertificateUntrusted" in first["error"], first
+    trust(pki, Path(first["certificate"]))
+
+    result = await _node_alarms(rig.url, client_pki, "operator", "T1Level")
+    assert result["ok"] is True and result["rc"] == 0, result
+    assert result["refresh"] == ["T1Level"]
+    assert result["eventId"] == ev.event_id.hex()
+    assert result["conditionId"] == rig.cid("T1Level").to_string()
+    assert (result["ack"], result["acked"]) == ("Good", True)
+    assert rig.core.calls[-1] == ConditionCall(
+        "T1Level", Method.ACKNOWLEDGE, "operator", ev.event_id, "from node-opcua"
+    )
