@@ -55,6 +55,28 @@ def identity_paths(tier: Tier) -> dict[str, str]:
     return {item: f"{TIER_ROOTS[tier]}.Identity.{item}" for item in IDENTITY_ITEMS}
 
 
+def tier_root(tier: Tier) -> str:
+    """The root object of ``tier``'s nodes (``PLC``); its notifier is the tier's event source."""
+    return TIER_ROOTS[tier]
+
+
+CONDITIONS = "Conditions"
+"""The NodeId segment under a tier's root that holds its alarm conditions' ids."""
+
+
+@cache
+def condition(tier: Tier, name: str) -> str:
+    """The NodeId string of ``tier``'s alarm condition ``name`` (``PLC.Conditions.T1Level``).
+
+    A condition's id is derived from its definition's name alone, so a client that knows the
+    name (``tankctl ack T1Level``) needs no browse; in the address space the condition is a
+    component of its source node (``tanklab_io.conditions``), so unlike a tag its NodeId is not
+    its browse path. Its children's ids follow asyncua's rule for string ids: the parent's id,
+    a dot, the child's BrowseName (``PLC.Conditions.T1Level.AckedState.Id``).
+    """
+    return f"{TIER_ROOTS[tier]}.{CONDITIONS}.{name}"
+
+
 # ---- plant ------------------------------------------------------------------------------
 
 

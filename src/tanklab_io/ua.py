@@ -93,6 +93,12 @@ CURRENT_USER: contextvars.ContextVar[User | None] = contextvars.ContextVar(
 )
 """The user of the request being served (set per request by the secure message processor)."""
 
+CURRENT_SESSION: contextvars.ContextVar[ua.NodeId | None] = contextvars.ContextVar(
+    "tanklab_current_session", default=None
+)
+"""The SessionId of the request being served (set with :data:`CURRENT_USER`; None outside a
+client's request), e.g. for ConditionRefresh to refuse another session's subscription."""
+
 
 def who(user: User | None) -> tuple[str, str]:
     """(user name, role name) of a session user, for refusals and the audit trail."""

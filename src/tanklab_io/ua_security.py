@@ -20,6 +20,8 @@ Server side (:func:`secure_server`)
       (~70 ms) runs in a worker thread before asyncua's synchronous user lookup, so logins never
       hold up the tier's event loop.
     * Roles are checked per node by :class:`tanklab_io.ua.WriteGuard` and the method adapter.
+    * Event filters: OfType matches the type and its subtypes
+      (:func:`tanklab_io.conditions.oftype.match_event_subtypes`; asyncua matches the exact type).
     * Audit: every write and call (accepted or refused) and every refused session activation
       goes to the tier's :class:`~tanklab_io.audit.AuditLog` and is raised as a
       ``TanklabAuditEventType`` event on the Server object.
@@ -64,9 +66,11 @@ from tanklab.errors import SecurityError
 from tanklab.handlers import check_handlers
 from tanklab.tags import APPLICATION_URIS, NAMESPACE_URI, Role, Tag, tags_by_path
 from tanklab_io.audit import AuditLog, AuditRecord
+from tanklab_io.conditions.oftype import match_event_subtypes
 from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.pki import Pki
 from tanklab_io.ua import (
+    CURRENT_SESSION,
     CURRENT_USER,
     MethodHandler,
     Publisher,
@@ -352,6 +356,7 @@ class _SecureProcessor(UaProcessor):
         if typeid == _ACTIVATE_SESSION:
             await self._preverify(body)
         token = CURRENT_USER.set(self.session.user if self.session is not None else None)
+        session_token = CURRENT_SESSION.set(self.session.session_id if self.session is not None else None)
         try:
             return await super()._process_message(typeid, requesthdr, seqhdr, body)
         except ServiceError as e:
@@ -365,6 +370,7 @@ class _SecureProcessor(UaProcessor):
                 )
             raise
         finally:
+            CURRENT_SESSION.reset(session_token)
             CURRENT_USER.reset(token)
 
 
@@ -567,6 +573,9 @@ async def secure_server(
     server.audit = audit
     server.audit_events = AuditEvents()
     await server.audit_events.install(server, audit)
+    # Event filters' OfType matches subtypes (asyncua: the exact type only), so a client
+    # filtering on AlarmConditionType receives the tier's level and off-normal alarms.
+    match_event_subtypes(server)
     return audit
 
 
