@@ -4,7 +4,7 @@
 events and hands client calls to the core; ``fields`` is the node layout and the pure
 snapshot-to-values mapping, ``nodes`` builds nodes and notifier chains, ``calls`` checks roles
 and arguments, ``oftype`` makes event filters' OfType match subtypes
-(docs/decisions/0036-ua-conditions.md).
+(docs/decisions/0037-ua-conditions.md).
 """
 
 from tanklab_io.conditions.calls import ALLOWED, INPUTS, check_call, status_code

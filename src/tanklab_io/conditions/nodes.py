@@ -4,7 +4,7 @@ asyncua can instantiate a type (``add_object(objecttype=...)``), but it browses 
 node by node: a median 50 ms CPU per ExclusiveLevelAlarmType condition with the mandatory
 children only, 124 ms with the optional ones, against 8.1 ms for one AddNodes call of the
 children tanklab uses (:data:`~tanklab_io.conditions.fields.CHILDREN`), the three alternated in
-one process, 12 conditions each (decision 0036). So each condition is added that way.
+one process, 12 conditions each (decision 0037). So each condition is added that way.
 
 Notifier chain (Part 9 5.3, Part 3 7.16-7.19)
     Server -HasNotifier-> tier root -HasNotifier-> ... -HasNotifier-> the source's object, each
