@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import sys
+import tempfile
 import threading
 from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
@@ -54,6 +56,11 @@ class Stack:
     logs: dict[str, str] = field(default_factory=dict)
     """Log text of every process, by log file name, kept at :meth:`down` (the log directory
     may be temporary)."""
+    exited: dict[str, int] = field(default_factory=dict)
+    """Tiers that exited by themselves (not stopped or killed by the stack), with their exit
+    codes, as :meth:`down` found them."""
+    _scratch: tempfile.TemporaryDirectory[str] | None = field(default=None, repr=False)
+    _ended: set[str] = field(default_factory=set, repr=False)
 
     # ---- where ---------------------------------------------------------------------------------
 
@@ -104,8 +111,9 @@ class Stack:
         old = self.procs.get(tier)
         if old is not None and old.running:
             raise RuntimeError(f"{tier} of the stack on {self.base} is still running ({old.main_pid})")
-        log = None if self.log_dir is None else self.log_dir / f"{tier}-{self.runs[tier]}.log"
+        log = self._logs_dir() / f"{tier}-{self.runs[tier]}.log"
         self.runs[tier] += 1
+        self._ended.discard(tier)
         proc = TankctlProcess(*self.args(tier, *extra), log=log, env=self.env)
         self.procs[tier] = proc
         return await proc.start()
@@ -124,20 +132,46 @@ class Stack:
 
     async def kill(self, tier: str) -> None:
         """SIGKILL ``tier`` (a crash)."""
+        self._ended.add(tier)
         await self.procs[tier].kill()
 
     async def stop(self, tier: str) -> int | None:
         """SIGTERM ``tier`` (SIGKILL after the bounded wait); its exit code."""
+        self._ended.add(tier)
         return await self.procs[tier].stop()
 
     async def down(self) -> None:
-        """Stop every tier started, top-down (frozen ones too), and keep the logs."""
+        """Stop every tier started, top-down (frozen ones too), and keep the logs.
+
+        A tier that had exited by itself is recorded in :attr:`exited` and the end of its log
+        goes to stderr (pytest shows it with the failing test: why a server went away).
+        """
         for tier in reversed(TIERS):
-            if tier in self.procs:
-                await self.procs[tier].stop()
+            proc = self.procs.get(tier)
+            if proc is None:
+                continue
+            if proc.proc is not None and proc.proc.returncode is not None and tier not in self._ended:
+                self.exited[tier] = proc.proc.returncode
+            await proc.stop()
+        for log in sorted(self._logs_dir().glob("*.log")):
+            self.logs[log.name] = log.read_text(encoding="utf-8", errors="replace")
+        for tier, code in self.exited.items():
+            name = f"{tier}-{self.runs[tier] - 1}.log"
+            tail = "\n".join(self.logs.get(name, "").splitlines()[-40:])
+            head = f"stack on {self.base}: {tier} exited by itself (code {code}); its log ends:"
+            print(f"{head}\n{tail}", file=sys.stderr)
+        if self._scratch is not None:
+            self._scratch.cleanup()
+            self._scratch = None
+
+    def _logs_dir(self) -> Path:
+        """Where the processes' logs go: ``log_dir``, or a scratch directory removed by
+        :meth:`down` (the logs stay in :attr:`logs`)."""
         if self.log_dir is not None:
-            for log in sorted(self.log_dir.glob("*.log")):
-                self.logs[log.name] = log.read_text(encoding="utf-8", errors="replace")
+            return self.log_dir
+        if self._scratch is None:
+            self._scratch = tempfile.TemporaryDirectory(prefix=f"tanklab-stack-{self.base}-")
+        return Path(self._scratch.name)
 
     @contextlib.contextmanager
     def serving(self, tiers: Sequence[str] = TIERS, deadline_s: float = UP_TIMEOUT_S) -> Iterator[Stack]:

@@ -339,6 +339,15 @@ async def test_plc_warm_restart_after_the_pumps_were_stopped_resumes_from_the_la
         await s.run_for(5.0)
         await s.start_plc()
         await s.run_for(100.0)
+        # And 100 scans of the restarted PLC: on a busy machine it scans fewer times per second
+        # of the plant's model time, and the recovery is the loop's, scan by scan.
+        scan_s = SITE.plc.scan_period_s if SITE.plc else 1.0
+
+        async def scanned() -> bool:
+            await s.sample()
+            return len(trace_rows(s.traces()[1])) >= 100.0 / scan_s
+
+        await wait_until(scanned, 240, what="100 scans of the restarted PLC")
     finally:
         await s.down()
     old, new = trace_rows(s.traces()[0]), trace_rows(s.traces()[1])

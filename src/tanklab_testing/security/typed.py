@@ -351,8 +351,8 @@ class FuzzCounts:
 
     def merge_raw(self, out: RawOutcome) -> None:
         self.cases[out.kind] += 1
-        if out.failed:
-            self.failed[out.kind] += 1
+        if out.failed:  # keyed with the reason: a report (or a failing test) says why
+            self.failed[f"{out.kind}: {out.failed}"] += 1
             return
         if out.closed:
             self.closed[out.kind] += 1
