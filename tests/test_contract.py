@@ -20,6 +20,7 @@ import pytest
 from plant_sim.plant import PlantSimulator
 from plant_sim.server import PlantServer
 from plc_emulator.program import PlcProgram
+from plc_emulator.publish import status_values
 from plc_emulator.server import PlcServer
 from plc_emulator.writes import apply_write, program_writes
 from supervisor.cycle import SupervisorCore
@@ -196,8 +197,8 @@ def test_the_in_process_port_writes_through_the_same_handlers() -> None:
     loop = paths.plc.loop("LIC1")
     assert set(program_writes(program)) == writable_variables(plc_tags(site))
     assert apply_write(program, loop.sp, 0.2) is True
-    assert program.values()[loop.sp] == 0.2
+    assert status_values(program.status())[loop.sp] == 0.2
     assert apply_write(program, loop.pv, 0.2) is False  # read-only: no handler
     with pytest.raises(ValueError):
         apply_write(program, loop.sp, 1e6)  # the program's own range check
-    assert program.values()[loop.sp] == 0.2
+    assert status_values(program.status())[loop.sp] == 0.2

@@ -32,7 +32,9 @@ A scan (period Ts of model time) does, in order:
    bumplessly after the reset and no pump restarts by itself at an old manual value.
 6. **Write outputs**: one command per pump, in the pump's own unit, always inside the pump's
    command range.
-7. **Publish**: every PLC node's value the program owns, keyed by tag path (``values()``).
+7. **Report**: the program's state as a value (``status()``: a
+   :class:`plc_emulator.status.PlcStatus`), which the OPC UA side maps to the contract's nodes
+   (:func:`plc_emulator.publish.status_values`); the program knows no node path.
 
 Gain sources (``tanklab.enums.GainSource``, one per PID loop):
 
@@ -65,8 +67,8 @@ from plc_emulator import retain
 from plc_emulator.interlocks import Interlock, latch, reset_trips
 from plc_emulator.loops import ERROR_SCALE, Group, Loop, build_groups, group_gains, make_loops
 from plc_emulator.pid import Pid
+from plc_emulator.status import InterlockStatus, LoopStatus, PlcStatus, TankStatus
 from plc_emulator.watchdog import Watchdog
-from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode
 from tanklab.gains import LoopGains
@@ -74,18 +76,7 @@ from tanklab.gains import LoopGains
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-__all__ = ["ERROR_SCALE", "RUNTIME_OWNED_TAGS", "GainStatus", "PlcProgram", "ScanInputs", "ScanOutputs"]
-
-RUNTIME_OWNED_TAGS = (
-    paths.plc.scan_period,
-    paths.plc.last_scan_duration,
-    paths.plc.overruns,
-    paths.plc.heartbeat,
-    paths.plc.supervisor_timeout,
-    *paths.link_status_paths(paths.plc.plant_link).values(),
-)
-"""PLC variables the runtime publishes, not :meth:`PlcProgram.values` (plus ``PLC.LIC*.Block``):
-its scan timing, the supervisor's heartbeat and timeout, and its field link's status."""
+__all__ = ["ERROR_SCALE", "GainStatus", "PlcProgram", "ScanInputs", "ScanOutputs"]
 
 
 class GainStatus(Enum):
@@ -116,10 +107,11 @@ class ScanInputs:
 
 @dataclass(frozen=True)
 class ScanOutputs:
-    """What a scan writes: pump commands (pump order, pump units) and the values to publish."""
+    """What a scan writes: pump commands (pump order, pump units) and, when it publishes, the
+    program's state after it (:meth:`PlcProgram.status`; None for ``scan(publish=False)``)."""
 
     commands: FloatArray
-    values: dict[str, Any]
+    status: PlcStatus | None
 
 
 @dataclass
@@ -201,11 +193,20 @@ class PlcProgram:
         self.hh_m = np.full(self.n_tanks, math.inf)
         for il in self.interlocks:
             self.hh_m[il.tank] = min(self.hh_m[il.tank], il.high_high_m)
+        # status()'s constants per tank: name, high, low and high-high levels [m] as Python floats
+        # (the same float64 values as the arrays)
+        self._tank_consts: list[tuple[str, float, float, float]] = list(
+            zip(tanks, self.high_m.tolist(), self.low_m.tolist(), self.hh_m.tolist(), strict=True)
+        )
         self.loops = make_loops(site)
         self._pending_heartbeat: int | None = None
         self.pid_groups: list[Group]
         self.groups: list[Group]
         self.pid_groups, self.groups = build_groups(self.loops, self.ts_s)
+        # status()'s constants per loop: the loop, its name, the config's setpoint range [m]
+        self._loop_consts: list[tuple[Loop, str, float, float]] = [
+            (lp, lp.spec.name, lp.spec.sp_min_m, lp.spec.sp_max_m) for lp in self.loops
+        ]
 
     # ---- state after the last scan (arrays built on request) -----------------------------
 
@@ -252,8 +253,7 @@ class PlcProgram:
     def sp_limits(self, name: str) -> tuple[float, float]:
         """The operator's setpoint range of a loop now [m]: the engineer's limits, which lie
         inside the config's [sp_min_m, sp_max_m] (the defaults)."""
-        lp = self.loop(name)
-        return max(lp.sp_low_m, lp.spec.sp_min_m), min(lp.sp_high_m, lp.spec.sp_max_m)
+        return _sp_limits(self.loop(name))
 
     def set_sp_limits(self, name: str, low_m: float | None = None, high_m: float | None = None) -> None:
         """Engineer: narrow (or restore) the operator's setpoint range of a loop [m].
@@ -489,8 +489,9 @@ class PlcProgram:
     def scan(self, inputs: ScanInputs, *, publish: bool = True) -> ScanOutputs:
         """Run one scan at model time ``inputs.t_s``; see the module docstring for the order.
 
-        ``publish=False`` leaves ``ScanOutputs.values`` empty (a co-simulation without a
-        supervisor reads no PLC node, and :meth:`values` is a tenth of a scan's time).
+        ``publish=False`` leaves ``ScanOutputs.status`` None (a co-simulation without a
+        supervisor reads no PLC node, and :meth:`status` with its mapping to the nodes is about
+        a tenth of a scan's time).
 
         Raises
         ------
@@ -513,7 +514,7 @@ class PlcProgram:
         self._write_outputs(self._apply_interlocks())
         self.scan_count += 1
         return ScanOutputs(
-            commands=np.array(self._commands, dtype=float), values=self.values() if publish else {}
+            commands=np.array(self._commands, dtype=float), status=self.status() if publish else None
         )
 
     def _set_pid_gains(self) -> None:
@@ -644,47 +645,64 @@ class PlcProgram:
                 low = lo if lo > c else c
                 commands[k] = hi if hi < low else low
 
-    # ---- publishing ---------------------------------------------------------------------
+    # ---- reporting ----------------------------------------------------------------------
 
-    def values(self) -> dict[str, Any]:
-        """Every PLC node's value the program owns, keyed by tag path (plain Python types).
+    def status(self) -> PlcStatus:
+        """The program's state now (after the last scan; before the first, the initial state).
 
-        All variables of :func:`tanklab.tags.plc_tags` except :data:`RUNTIME_OWNED_TAGS`,
-        ``PLC.LIC*.Block`` and ``PLC.Identity.*`` (constant: the nodes keep their initial
-        values). A bad PV is published as its last good value (0 before the first one), with its
-        quality on ``PLC.IO.LT*.Good`` and ``PLC.Alarms.LIC*PvBad``.
+        A bad PV is reported as its last good value (0 before the first one), with its quality
+        (``LoopStatus.pv_bad``, ``TankStatus.good``). Values are plain Python floats, ints and
+        bools, the enumerations their enum members.
+
+        Built on every published scan, so built for speed: the named tuples through
+        ``tuple.__new__`` (their generated ``__new__`` is one Python call more per object), the
+        config's constants read from lists made once, the setpoint range inline (as
+        :meth:`sp_limits` computes it: ``max`` and ``min`` of two floats).
         """
-        v: dict[str, Any] = {}
-        for lp in self.loops:
-            n = paths.plc.loop(lp.spec.name)
-            v[n.sp] = float(lp.sp_m)
-            v[n.sp_low], v[n.sp_high] = self.sp_limits(lp.spec.name)
-            v[n.pv] = float(lp.pv_last_good_m)
-            v[n.mv] = float(lp.mv)
-            v[n.mode] = int(lp.mode)
-            v[n.manual_mv] = float(lp.manual_mv)
-            v[n.remote_mv] = float(lp.remote_mv)
-            g = lp.applied
-            v[n.kp] = float(g.kp) if g else 0.0
-            v[n.ki] = float(g.ki) if g else 0.0
-            v[n.kd] = float(g.kd) if g else 0.0
-            v[n.gain_source] = int(lp.source)
-            v[paths.plc.pv_bad_alarm(lp.spec.name)] = bool(lp.pv_bad)
-        v[paths.plc.scan] = int(self.scan_count)
-        v[paths.plc.io_healthy] = bool(self.io_healthy)
-        v[paths.plc.model_time] = float(self.t_s)
-        v[paths.plc.supervisor_alive] = bool(self.watchdog.alive)
-        v[paths.plc.io_fault] = not self.io_healthy
-        v[paths.plc.supervisor_lost] = bool(self.watchdog.ever_alive and not self.watchdog.alive)
-        for i, name in enumerate(self.site.tank_names):
-            level = self._levels_m[i]
-            ok = self._good[i]
-            io = paths.plc.io(name)
-            v[io.pv] = self._last_good_m[i]
-            v[io.good] = ok
-            v[paths.plc.alarm(name, "H")] = bool(ok and level >= self.high_m[i])
-            v[paths.plc.alarm(name, "L")] = bool(ok and level <= self.low_m[i])
-            v[paths.plc.alarm(name, "HH")] = bool(self._raw_m[i] >= self.hh_m[i])
-        for il in self.interlocks:
-            v[paths.plc.interlock(il.tank_name)] = bool(il.tripped)
-        return v
+        w = self.watchdog
+        new = tuple.__new__
+        loops = [
+            new(
+                LoopStatus,
+                (
+                    name,
+                    float(lp.sp_m),
+                    spec_lo if spec_lo > lp.sp_low_m else lp.sp_low_m,  # max(sp_low_m, spec_lo)
+                    spec_hi if spec_hi < lp.sp_high_m else lp.sp_high_m,  # min(sp_high_m, spec_hi)
+                    float(lp.pv_last_good_m),
+                    float(lp.mv),
+                    lp.mode,
+                    float(lp.manual_mv),
+                    float(lp.remote_mv),
+                    lp.applied,
+                    lp.source,
+                    bool(lp.pv_bad),
+                ),
+            )
+            for lp, name, spec_lo, spec_hi in self._loop_consts
+        ]
+        tanks = [
+            new(TankStatus, (name, last_good, ok, ok and x >= high, ok and x <= low, raw >= hh))
+            for (name, high, low, hh), last_good, ok, x, raw in zip(
+                self._tank_consts, self._last_good_m, self._good, self._levels_m, self._raw_m, strict=True
+            )
+        ]
+        trips = [new(InterlockStatus, (il.tank_name, bool(il.tripped))) for il in self.interlocks]
+        return new(
+            PlcStatus,
+            (
+                self.scan_count,
+                float(self.t_s),
+                bool(self.io_healthy),
+                bool(w.alive),
+                bool(w.ever_alive and not w.alive),
+                tuple(loops),
+                tuple(tanks),
+                tuple(trips),
+            ),
+        )
+
+
+def _sp_limits(lp: Loop) -> tuple[float, float]:
+    """A loop's operator setpoint range now [m] (see :meth:`PlcProgram.sp_limits`)."""
+    return max(lp.sp_low_m, lp.spec.sp_min_m), min(lp.sp_high_m, lp.spec.sp_max_m)

@@ -34,7 +34,6 @@ import asyncio
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,6 +41,7 @@ from numpy.typing import NDArray
 from plc_emulator.link import FieldLink, FieldReadings
 from plc_emulator.program import PlcProgram, ScanInputs
 from plc_emulator.server import PlcServer
+from plc_emulator.status import PlcStatus
 from tanklab import paths
 from tanklab.clock import Clock, Deadlines, MonotonicClock, sleep_or_stop
 from tanklab.config import SiteConfig
@@ -148,11 +148,11 @@ async def _wait_event(event: asyncio.Event, timeout_s: float) -> bool:
 
 
 def _trace_row(
-    program: PlcProgram, values: dict[str, Any], readings: FieldReadings, commands: NDArray[np.float64]
+    program: PlcProgram, status: PlcStatus, readings: FieldReadings, commands: NDArray[np.float64]
 ) -> list[float]:
     """One trace line: scan, model time, levels read, commands written, each loop's SP, mode and
     gain source (as left by the scan)."""
-    row = [float(program.scan_count), float(values[paths.plc.model_time]), *readings.levels_m, *commands]
+    row = [float(program.scan_count), float(status.t_s), *readings.levels_m, *commands]
     return row + [float(x) for lp in program.loops for x in (lp.sp_m, int(lp.mode), int(lp.source))]
 
 
@@ -253,7 +253,7 @@ async def run_plc(
         {paths.plc.scan_period: ts, paths.plc.supervisor_timeout: program.watchdog.timeout_s}
     )
     if warm:
-        await server.publish(program.values())
+        await server.publish_status(program.status())
     if ready is not None:
         ready.set()
     period = ts / speed
@@ -290,17 +290,16 @@ async def run_plc(
                 readings = FieldReadings(np.full(n, np.nan), np.zeros(n, dtype=bool))
             ack.clear()
             out = program.scan(ScanInputs(t_model, readings.levels_m, readings.good, healthy))
+            status = out.status
+            assert status is not None  # scan() publishes by default
             # The scan's row is taken now: a supervisor write may land during the field I/O below.
-            row = _trace_row(program, out.values, readings, out.commands) if trace_file is not None else None
+            row = _trace_row(program, status, readings, out.commands) if trace_file is not None else None
             # Publish the scan's values before the field I/O: in lock-step the supervisor reads
             # and acts on them while the plant integrates (its acknowledgement may then arrive
             # before Advance returns), instead of after; nothing below changes them.
-            await server.publish(
-                {
-                    **out.values,
-                    paths.plc.overruns: deadlines.overruns,
-                    **field_link.link.status(paths.plc.plant_link),
-                }
+            await server.publish_status(
+                status,
+                {paths.plc.overruns: deadlines.overruns, **field_link.link.status(paths.plc.plant_link)},
             )
             if lockstep:
                 result = await field_link.advance(ts, out.commands)

@@ -16,17 +16,23 @@ releasing an engineer's hold; BadInvalidState while a mode change is pending or 
 without PID gains); ``LIC{j}.ReleaseGains()`` hands an ENGINEER loop back (source FIXED, gains
 kept). Role checks and the audit record of every call are the method adapter's
 (:mod:`tanklab_io.ua`). ``Interlock.Reset()`` resets the latched trips whose level is low enough.
+
+The program reports its state as a value (:class:`plc_emulator.status.PlcStatus`);
+:func:`plc_emulator.publish.status_values` maps it to the contract's paths, and
+:meth:`PlcServer.publish_status` publishes it.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from typing import Any
 
 from asyncua import ua
 
 from plc_emulator.program import GainStatus, PlcProgram
+from plc_emulator.publish import status_values
+from plc_emulator.status import PlcStatus
 from plc_emulator.writes import ProgramWrite, program_writes
 from tanklab import paths
 from tanklab.config import SiteConfig
@@ -79,7 +85,7 @@ class PlcServer:
         static: dict[str, Any] = {
             paths.plc.loop(lp.spec.name).block: lp.spec.block for lp in self.program.loops
         }
-        await self.publish({**static, **self.program.values()})
+        await self.publish_status(self.program.status(), static)
         log.info("PLC server listening at %s", self.url)
 
     async def stop(self) -> None:
@@ -88,9 +94,17 @@ class PlcServer:
         log.info("PLC server stopped")
 
     async def publish(self, values: dict[str, Any]) -> None:
-        """Publish the scan's values (and the runtime's status values)."""
+        """Publish values keyed by tag path (the runtime's own: scan duration, link status)."""
         assert self.publisher is not None
         await self.publisher.publish(values)
+
+    async def publish_status(self, status: PlcStatus, extra: Mapping[str, Any] | None = None) -> None:
+        """Publish the program's state (:func:`status_values`) and ``extra`` values keyed by tag
+        path (the runtime's, for the same scan), in one pass."""
+        values = status_values(status)
+        if extra:
+            values.update(extra)
+        await self.publish(values)
 
     # ---- writes and calls ---------------------------------------------------------------
 

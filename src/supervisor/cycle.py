@@ -99,7 +99,8 @@ class PlcSnapshot:
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any], loops: list[str], tanks: list[str]) -> PlcSnapshot:
-        """Build a snapshot from PLC values keyed by path (a Read's results or PlcProgram.values())."""
+        """Build a snapshot from PLC values keyed by path (a Read's results, or in the
+        co-simulation the program's status mapped to the nodes as the PLC server publishes it)."""
         loop_vals = np.array([[float(values[p]) for p in _loop_items(lp)] for lp in loops])
         return cls(
             scan=int(values[paths.plc.scan]),

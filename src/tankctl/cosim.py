@@ -22,6 +22,8 @@ from numpy.typing import NDArray
 
 from plant_sim.plant import PlantSimulator
 from plc_emulator.program import GainStatus, PlcProgram, ScanInputs
+from plc_emulator.publish import status_values
+from plc_emulator.status import PlcStatus
 from plc_emulator.writes import apply_write
 from supervisor.cycle import PlcSnapshot, SupervisorCore
 from supervisor.port import PlcRequest, SupervisorDriver
@@ -84,7 +86,8 @@ class _LastRows:
 class ProgramPort:
     """The in-process PLC port (:class:`supervisor.port.PlcPort`) on a :class:`PlcProgram`.
 
-    A snapshot is made of the values the program published at its last scan, as the
+    A snapshot is made of the program's status at its last scan, mapped to the PLC's nodes as
+    the server publishes them (:func:`plc_emulator.publish.status_values`) and read as the
     supervisor's one Read sees them; a request's writes go through the same dispatch as the PLC
     server's (:func:`plc_emulator.writes.apply_write`), its SetGains calls through
     ``stage_gains``. A write the program refuses is counted (``refused_writes``) and the rest of
@@ -95,13 +98,13 @@ class ProgramPort:
         self.program = program
         self.loops = site.loop_names
         self.tanks = site.tank_names
-        self.values: dict[str, Any] | None = None
+        self.status: PlcStatus | None = None
         self.refused_writes = 0
 
     def snapshot(self) -> PlcSnapshot | None:
-        if self.values is None:
+        if self.status is None:
             return None
-        return PlcSnapshot.from_values(self.values, self.loops, self.tanks)
+        return PlcSnapshot.from_values(status_values(self.status), self.loops, self.tanks)
 
     def apply(self, request: PlcRequest) -> list[str]:
         self._write(request.writes)
@@ -242,7 +245,7 @@ class CoSimulation:
             # site.plant.pumps ranges as the plant's (and set_commands refuses anything else)
             self.plant.set_commands(commands)
         self._record(commands, readings)
-        self._supervise(out.values)
+        self._supervise(out.status)
         self.plant.advance(self.ts_s)
 
     @property
@@ -250,11 +253,11 @@ class CoSimulation:
         """The supervisor's heartbeat count (0 without a supervisor)."""
         return self.driver.heartbeat if self.driver is not None else 0
 
-    def _supervise(self, values: dict[str, Any]) -> None:
+    def _supervise(self, status: PlcStatus | None) -> None:
         sup, driver = self.supervisor, self.driver
         solve = float("nan")
         if sup is not None and driver is not None and self.supervisor_alive:
-            self.port.values = values
+            self.port.status = status
             snap = self.port.snapshot()
             assert snap is not None
             preview = self.preview

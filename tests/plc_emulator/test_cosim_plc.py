@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from plant_sim.linearize import operating_point
 from plant_sim.models import TankNetwork, default_inputs
 from plc_emulator.program import GainStatus
+from plc_emulator.publish import status_values
 from tankctl.cosim import CoSimulation, Trace
 from tanklab.config import SiteConfig, site_from_mapping
 from tanklab.enums import GainSource, LoopMode
@@ -216,7 +217,7 @@ def test_heartbeat_loss_falls_back_within_timeout_plus_one_scan() -> None:
     after = times >= switch["LIC1"]
     assert np.max(np.abs(h[after, 0] - 0.4)) < 0.02
     assert np.max(np.abs(h[after, 1] - 0.2)) < 0.02
-    assert plc.values()["PLC.Alarms.SupervisorLost"] is True
+    assert status_values(plc.status())["PLC.Alarms.SupervisorLost"] is True
 
 
 # =========================================================================== interlock
@@ -243,7 +244,7 @@ def test_interlock_trips_when_the_setpoint_is_driven_high() -> None:
             if plc.reset_interlocks():
                 reset_at = cs.t_s
         cs.step()
-        tripped = plc.values()["PLC.Interlock.T1HH"]
+        tripped = status_values(plc.status())["PLC.Interlock.T1HH"]
         u1 = cs.trace.commands[-1][0]
         if reading >= 0.45 and trip_scan is None:
             trip_scan = cs.t_s - cs.ts_s
@@ -282,7 +283,7 @@ def test_link_loss_then_recovery_substitutes_and_resumes_bumplessly() -> None:
     for _ in range(20):
         cs.io_healthy = False
         cs.step()
-        healthy.append(plc.values()["PLC.Status.IoHealthy"])
+        healthy.append(status_values(plc.status())["PLC.Status.IoHealthy"])
     lost = cs.trace.array("commands")[-20:]
     plant_cmd = cs.plant.commands  # what the plant kept running on
     cs.io_healthy = True

@@ -22,7 +22,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from plc_emulator.program import RUNTIME_OWNED_TAGS, GainStatus, PlcProgram, ScanInputs, ScanOutputs
+from plc_emulator.program import GainStatus, PlcProgram, ScanInputs, ScanOutputs
+from plc_emulator.publish import RUNTIME_OWNED_TAGS, status_values
 from tanklab.config import SiteConfig, site_from_mapping
 from tanklab.enums import GainSource, LoopMode
 from tanklab.gains import LoopGains
@@ -99,8 +100,14 @@ class Rig:
             self.scan(levels)
 
 
+def published(out: ScanOutputs) -> dict[str, Any]:
+    """The PLC's node values of a scan, as the server publishes them."""
+    assert out.status is not None
+    return status_values(out.status)
+
+
 def mv(out: ScanOutputs, loop: str) -> float:
-    value: float = out.values[f"PLC.{loop}.MV"]
+    value: float = published(out)[f"PLC.{loop}.MV"]
     return value
 
 
@@ -128,13 +135,14 @@ def test_values_publish_exactly_the_program_owned_plc_tags(path: Path) -> None:
         "PLC.Status.PlantLink.LastError",
         "PLC.Status.PlantLink.RetryDelay",
     }
-    assert set(program.values()) == expected  # before the first scan too (the server's initial publish)
+    # before the first scan too (the server's initial publish)
+    assert set(status_values(program.status())) == expected
     levels = [t.initial_level_m for t in site.plant.tanks]
     out = program.scan(inputs(0.0, levels))
-    assert set(out.values) == expected
+    assert set(published(out)) == expected
     out = program.scan(inputs(program.ts_s, [math.nan] * len(levels), io=False))
-    assert set(out.values) == expected
-    for path_, value in out.values.items():  # plain Python types, never NaN
+    assert set(published(out)) == expected
+    for path_, value in published(out).items():  # plain Python types, never NaN
         assert type(value) in (int, float, bool), path_
         assert not (isinstance(value, float) and not math.isfinite(value)), path_
 
@@ -157,8 +165,8 @@ def test_scan_state_arrays_are_new_copies_that_match_the_published_values() -> N
     assert np.array_equal(plc.levels_m, [0.31, math.nan, math.nan], equal_nan=True)
     assert plc.last_good_m.tolist() == [0.31, 0.2, 0.25]
     for i, name in enumerate(("1", "2", "3")):
-        assert out.values[f"PLC.IO.LT{name}.PV"] == plc.last_good_m[i]
-        assert out.values[f"PLC.IO.LT{name}.Good"] is bool(plc.good[i])
+        assert published(out)[f"PLC.IO.LT{name}.PV"] == plc.last_good_m[i]
+        assert published(out)[f"PLC.IO.LT{name}.Good"] is bool(plc.good[i])
     plc.commands[:] = 1.0  # writing to a copy changes nothing in the program
     plc.last_good_m[:] = 1.0
     assert plc.commands.tolist() == out.commands.tolist()
@@ -185,8 +193,8 @@ def test_velocity_form_increments_three_scans_by_hand() -> None:
         assert out.commands[0] == mv(out, "LIC1")
     # LIC2 saw e = 0 all along: MV stays at u(-1) = 0.
     assert out.commands[1] == 0.0
-    assert out.values["PLC.Status.Scan"] == 3
-    assert out.values["PLC.Status.ModelTime"] == 2.0
+    assert published(out)["PLC.Status.Scan"] == 3
+    assert published(out)["PLC.Status.ModelTime"] == 2.0
 
 
 @pytest.mark.parametrize(("c", "kick"), [(None, 0.0), (0.0, 0.0), (1.0, 1e-2 * 0.02 / 0.1)])
@@ -229,8 +237,8 @@ def test_rig_errors_are_in_centimetres() -> None:
     assert lp.pid.working_sp[0] == pytest.approx(40.0)  # the block works in cm
     cfg = lp.pid.config
     assert np.asarray(cfg.sp_max) == pytest.approx([60.0])  # sp_max_m 0.6 scaled to cm
-    assert out1.values["PLC.LIC1.SP"] == 0.4  # published in metres
-    assert out1.values["PLC.LIC1.PV"] == 0.36
+    assert published(out1)["PLC.LIC1.SP"] == 0.4  # published in metres
+    assert published(out1)["PLC.LIC1.PV"] == 0.36
 
 
 def test_cross_gains_couple_loops_in_one_mimo_block() -> None:
@@ -286,20 +294,20 @@ def test_staged_gains_take_effect_exactly_at_the_next_scan_boundary() -> None:
     lp = rig.plc.loop("LIC1")
     # Nothing changes before the boundary: applied gains, source, published values, block gains.
     assert lp.applied is not None and (lp.applied.kp, lp.applied.ki, lp.applied.kd) == (KP1, KI1, KD1)
-    assert lp.source is FIXED and rig.plc.values()["PLC.LIC1.Kp"] == KP1
+    assert lp.source is FIXED and status_values(rig.plc.status())["PLC.LIC1.Kp"] == KP1
     assert lp.pid is not None and lp.pid.gains.ki[0, 0] == KI1
     u_before = lp.mv
     out = rig.scan(levels)
     # The very next scan runs with all three new gains: constant e, so dMV = Ki_new Ts e = 2e-7.
     assert mv(out, "LIC1") - u_before == pytest.approx(2e-5 * 0.01, rel=1e-9)
-    assert (out.values["PLC.LIC1.Kp"], out.values["PLC.LIC1.Ki"], out.values["PLC.LIC1.Kd"]) == (
+    assert (published(out)["PLC.LIC1.Kp"], published(out)["PLC.LIC1.Ki"], published(out)["PLC.LIC1.Kd"]) == (
         1e-3,
         2e-5,
         0.0,
     )
-    assert out.values["PLC.LIC1.GainSource"] == SUPERVISOR
+    assert published(out)["PLC.LIC1.GainSource"] == SUPERVISOR
     # The other loop is untouched.
-    assert out.values["PLC.LIC2.GainSource"] == FIXED and out.values["PLC.LIC2.Kp"] == KP2
+    assert published(out)["PLC.LIC2.GainSource"] == FIXED and published(out)["PLC.LIC2.Kp"] == KP2
 
 
 def test_last_staged_set_wins_whole() -> None:
@@ -308,7 +316,7 @@ def test_last_staged_set_wins_whole() -> None:
     assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 1e-4) is GainStatus.STAGED
     assert rig.plc.stage_gains("LIC1", 2e-3, 3e-5, -1e-4) is GainStatus.STAGED
     out = rig.scan([0.4, 0.2, 0.3])
-    assert (out.values["PLC.LIC1.Kp"], out.values["PLC.LIC1.Ki"], out.values["PLC.LIC1.Kd"]) == (
+    assert (published(out)["PLC.LIC1.Kp"], published(out)["PLC.LIC1.Ki"], published(out)["PLC.LIC1.Kd"]) == (
         2e-3,
         3e-5,
         -1e-4,
@@ -335,12 +343,12 @@ def test_inadmissible_gain_sets_are_refused_whole(
     rig.trust([0.4, 0.2, 0.3])
     assert rig.plc.stage_gains("LIC1", *gains) is status
     out = rig.scan([0.4, 0.2, 0.3])
-    assert (out.values["PLC.LIC1.Kp"], out.values["PLC.LIC1.Ki"], out.values["PLC.LIC1.Kd"]) == (
+    assert (published(out)["PLC.LIC1.Kp"], published(out)["PLC.LIC1.Ki"], published(out)["PLC.LIC1.Kd"]) == (
         KP1,
         KI1,
         KD1,
     )
-    assert out.values["PLC.LIC1.GainSource"] == FIXED
+    assert published(out)["PLC.LIC1.GainSource"] == FIXED
 
 
 def test_gain_box_bounds_are_inclusive() -> None:
@@ -372,7 +380,7 @@ def test_set_gains_on_a_block_without_pid_gains_is_invalid_state(block: str) -> 
 
 # =========================================================================== gain sources
 def _gains(out: ScanOutputs, loop: str) -> tuple[float, float, float]:
-    v = out.values
+    v = published(out)
     return v[f"PLC.{loop}.Kp"], v[f"PLC.{loop}.Ki"], v[f"PLC.{loop}.Kd"]
 
 
@@ -390,8 +398,8 @@ def test_engineer_set_gains_is_labelled_engineer_and_needs_no_supervisor() -> No
     # Constant e after three scans (the D memory flushed): dMV = Ki_new Ts e = 2e-5 * 1 * 0.01.
     assert mv(out, "LIC1") - u_before == pytest.approx(2e-7, rel=1e-9)
     assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0)
-    assert out.values["PLC.LIC1.GainSource"] == ENGINEER == 3
-    assert out.values["PLC.LIC2.GainSource"] == FIXED
+    assert published(out)["PLC.LIC1.GainSource"] == ENGINEER == 3
+    assert published(out)["PLC.LIC2.GainSource"] == FIXED
     with pytest.raises(ValueError, match="SUPERVISOR or ENGINEER"):
         rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, FALLBACK)
 
@@ -407,7 +415,7 @@ def test_inadmissible_engineer_gains_are_refused_and_the_old_ones_stay(
     rig.scan([0.4, 0.2, 0.3])
     assert rig.plc.stage_gains("LIC1", *gains, ENGINEER) is GainStatus.OUT_OF_RANGE
     out = rig.scan([0.4, 0.2, 0.3])
-    assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0) and out.values["PLC.LIC1.GainSource"] == ENGINEER
+    assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0) and published(out)["PLC.LIC1.GainSource"] == ENGINEER
 
 
 def test_supervisor_is_refused_while_an_engineer_holds_the_loop_until_release() -> None:
@@ -419,23 +427,23 @@ def test_supervisor_is_refused_while_an_engineer_holds_the_loop_until_release() 
     assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE
     rig.plc.heartbeat(1)
     out = rig.scan(levels)
-    assert out.values["PLC.LIC1.GainSource"] == ENGINEER and rig.plc.engineer_holds("LIC1")
+    assert published(out)["PLC.LIC1.GainSource"] == ENGINEER and rig.plc.engineer_holds("LIC1")
     assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.INVALID_STATE
     # The other loop is the supervisor's as before.
     assert rig.plc.stage_gains("LIC2", 1e-3, 3e-5, -1e-3) is GainStatus.STAGED
     rig.plc.heartbeat(2)
     out = rig.scan(levels)
-    assert out.values["PLC.LIC2.GainSource"] == SUPERVISOR and _gains(out, "LIC1") == (1e-3, 2e-5, 0.0)
+    assert published(out)["PLC.LIC2.GainSource"] == SUPERVISOR and _gains(out, "LIC1") == (1e-3, 2e-5, 0.0)
     # ReleaseGains: the gains stay, source FIXED, and the supervisor may push again.
     assert rig.plc.release_gains("LIC1") is GainStatus.STAGED
     assert rig.plc.loop("LIC1").source is FIXED and not rig.plc.engineer_holds("LIC1")
     rig.plc.heartbeat(3)
     out = rig.scan(levels)
-    assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0) and out.values["PLC.LIC1.GainSource"] == FIXED
+    assert _gains(out, "LIC1") == (1e-3, 2e-5, 0.0) and published(out)["PLC.LIC1.GainSource"] == FIXED
     assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.STAGED
     rig.plc.heartbeat(4)
     out = rig.scan(levels)
-    assert _gains(out, "LIC1") == (5e-4, 6e-6, 0.0) and out.values["PLC.LIC1.GainSource"] == SUPERVISOR
+    assert _gains(out, "LIC1") == (5e-4, 6e-6, 0.0) and published(out)["PLC.LIC1.GainSource"] == SUPERVISOR
     # Release on a loop nobody holds changes nothing.
     assert rig.plc.release_gains("LIC1") is GainStatus.STAGED
     assert rig.plc.loop("LIC1").source is SUPERVISOR
@@ -446,7 +454,7 @@ def test_release_drops_an_engineer_set_still_staged() -> None:
     assert rig.plc.stage_gains("LIC1", 1e-3, 2e-5, 0.0, ENGINEER) is GainStatus.STAGED
     assert rig.plc.release_gains("LIC1") is GainStatus.STAGED
     out = rig.scan([0.4, 0.2, 0.3])
-    assert _gains(out, "LIC1") == (KP1, KI1, KD1) and out.values["PLC.LIC1.GainSource"] == FIXED
+    assert _gains(out, "LIC1") == (KP1, KI1, KD1) and published(out)["PLC.LIC1.GainSource"] == FIXED
 
 
 @pytest.mark.parametrize("holder", [SUPERVISOR, ENGINEER])
@@ -458,7 +466,7 @@ def test_reset_returns_to_the_fixed_gains_at_the_boundary_without_a_bump(holder:
     for k in range(3):  # three scans at constant e under the new gains: D memory flushed
         rig.plc.heartbeat(100 + k)
         out = rig.scan(levels)
-    assert out.values["PLC.LIC1.GainSource"] == holder and _gains(out, "LIC1") == (1e-3, 2e-5, 5e-4)
+    assert published(out)["PLC.LIC1.GainSource"] == holder and _gains(out, "LIC1") == (1e-3, 2e-5, 5e-4)
     assert rig.plc.reset_gains("LIC1") is GainStatus.STAGED
     # Until the boundary: the applied gains stay, and the supervisor may not stage over the reset.
     assert rig.plc.loop("LIC1").source is holder
@@ -469,7 +477,7 @@ def test_reset_returns_to_the_fixed_gains_at_the_boundary_without_a_bump(holder:
     # The scan after the boundary moves the MV by the fixed gains' increment only: constant e, so
     # P and D increments are 0 and dMV = KI1 Ts e = 5.32e-6 * 1 * 0.01 (no jump from the gains).
     assert mv(out, "LIC1") - u_before == pytest.approx(KI1 * 0.01, rel=1e-9)
-    assert _gains(out, "LIC1") == (KP1, KI1, KD1) and out.values["PLC.LIC1.GainSource"] == FIXED
+    assert _gains(out, "LIC1") == (KP1, KI1, KD1) and published(out)["PLC.LIC1.GainSource"] == FIXED
     assert not rig.plc.engineer_holds("LIC1")
     assert rig.plc.stage_gains("LIC1", 5e-4, 6e-6, 0.0) is GainStatus.STAGED  # adaptation again
 
@@ -513,15 +521,15 @@ def test_watchdog_leaves_engineer_gains_and_an_engineer_request_alone() -> None:
     assert rig.plc.stage_gains("LIC1", 2e-3, 3e-5, 0.0, ENGINEER) is GainStatus.STAGED
     out = rig.scan(levels)  # timeout 3 s: expired on this scan
     assert not rig.plc.watchdog.alive
-    assert out.values["PLC.LIC2.GainSource"] == FALLBACK and _gains(out, "LIC2") == (KP2, KI2, KD2)
-    assert out.values["PLC.LIC1.GainSource"] == ENGINEER and _gains(out, "LIC1") == (2e-3, 3e-5, 0.0)
+    assert published(out)["PLC.LIC2.GainSource"] == FALLBACK and _gains(out, "LIC2") == (KP2, KI2, KD2)
+    assert published(out)["PLC.LIC1.GainSource"] == ENGINEER and _gains(out, "LIC1") == (2e-3, 3e-5, 0.0)
     for _ in range(5):
         out = rig.scan(levels)
-    assert out.values["PLC.LIC1.GainSource"] == ENGINEER and _gains(out, "LIC1") == (2e-3, 3e-5, 0.0)
+    assert published(out)["PLC.LIC1.GainSource"] == ENGINEER and _gains(out, "LIC1") == (2e-3, 3e-5, 0.0)
     # An engineer works while the supervisor is lost: SetGains and ResetGains.
     assert rig.plc.reset_gains("LIC1") is GainStatus.STAGED
     out = rig.scan(levels)
-    assert out.values["PLC.LIC1.GainSource"] == FIXED and _gains(out, "LIC1") == (KP1, KI1, KD1)
+    assert published(out)["PLC.LIC1.GainSource"] == FIXED and _gains(out, "LIC1") == (KP1, KI1, KD1)
 
 
 def test_an_engineer_hold_survives_a_warm_restart() -> None:
@@ -569,7 +577,7 @@ def test_heartbeat_loss_falls_back_within_timeout_plus_one_scan() -> None:
         u_before = lp.mv
         out = rig.scan(levels)
         sources.append(lp.source)
-        alive.append(out.values["PLC.Supervisor.Alive"])
+        alive.append(published(out)["PLC.Supervisor.Alive"])
         if lp.source is FALLBACK and sources.count(FALLBACK) == 1:
             # Switching scan: the velocity form continues from the applied MV with the fixed
             # gains' increment, Ki Ts e = 5.32e-6 (0.001) = 5.32e-9 (no bump).
@@ -578,8 +586,8 @@ def test_heartbeat_loss_falls_back_within_timeout_plus_one_scan() -> None:
             assert rig.plc.t_s == 12.0
     assert sources == [SUPERVISOR, SUPERVISOR, FALLBACK, FALLBACK]
     assert alive == [True, True, False, False]
-    assert out.values["PLC.Alarms.SupervisorLost"] is True
-    assert (out.values["PLC.LIC1.Kp"], out.values["PLC.LIC1.Ki"]) == (KP1, KI1)
+    assert published(out)["PLC.Alarms.SupervisorLost"] is True
+    assert (published(out)["PLC.LIC1.Kp"], published(out)["PLC.LIC1.Ki"]) == (KP1, KI1)
 
 
 def test_fallback_timing_is_exact_at_a_fine_scan() -> None:
@@ -610,10 +618,10 @@ def test_remote_loop_sheds_to_auto_at_its_setpoint_bumplessly() -> None:
         assert mv(out, "LIC2") == 3.184e-5
     for _ in range(2):  # t = 5, 6: still alive (last change at t = 4)
         out = rig.scan(levels)
-        assert out.values["PLC.LIC2.Mode"] == REMOTE
+        assert published(out)["PLC.LIC2.Mode"] == REMOTE
     out = rig.scan(levels)  # t = 7
-    assert out.values["PLC.LIC2.Mode"] == AUTO
-    assert out.values["PLC.LIC2.SP"] == 0.2
+    assert published(out)["PLC.LIC2.Mode"] == AUTO
+    assert published(out)["PLC.LIC2.SP"] == 0.2
     assert mv(out, "LIC2") - 3.184e-5 == pytest.approx(KI2 * 0.001, rel=1e-9)
     assert abs(mv(out, "LIC2") - 3.184e-5) <= 0.01 * SPAN
 
@@ -627,8 +635,8 @@ def test_fallback_to_last_accepted_gains() -> None:
     for _ in range(3):
         rig.scan(levels)
     out = rig.scan(levels)
-    assert out.values["PLC.LIC1.GainSource"] == FALLBACK
-    assert (out.values["PLC.LIC1.Kp"], out.values["PLC.LIC1.Ki"], out.values["PLC.LIC1.Kd"]) == (
+    assert published(out)["PLC.LIC1.GainSource"] == FALLBACK
+    assert (published(out)["PLC.LIC1.Kp"], published(out)["PLC.LIC1.Ki"], published(out)["PLC.LIC1.Kd"]) == (
         1e-3,
         1e-5,
         0.0,
@@ -672,8 +680,8 @@ def test_gains_staged_just_before_the_timeout_are_dropped() -> None:
     rig.scan(levels)  # t = 2: good for 3 scans, trusted
     assert rig.plc.stage_gains("LIC1", 1e-3, 1e-5, 0.0) is GainStatus.STAGED
     out = rig.scan(levels)  # t = 3: expired at this boundary
-    assert out.values["PLC.Supervisor.Alive"] is False
-    assert out.values["PLC.LIC1.GainSource"] == FIXED and out.values["PLC.LIC1.Kp"] == KP1
+    assert published(out)["PLC.Supervisor.Alive"] is False
+    assert published(out)["PLC.LIC1.GainSource"] == FIXED and published(out)["PLC.LIC1.Kp"] == KP1
     assert rig.plc.loop("LIC1").staged is None
 
 
@@ -681,9 +689,9 @@ def test_grace_period_counts_from_the_first_scan_not_from_time_zero() -> None:
     # A PLC (re)started at model time 5000 s keeps a REMOTE loop for the first timeout.
     rig = Rig(energies(lambda d: d["plc"]["loops"][1].update(mode="REMOTE")))
     rig.t0 = 5000.0
-    modes = [rig.scan([0.4, 0.2, 0.3]).values["PLC.LIC2.Mode"] for _ in range(4)]
+    modes = [published(rig.scan([0.4, 0.2, 0.3]))["PLC.LIC2.Mode"] for _ in range(4)]
     assert modes == [REMOTE, REMOTE, REMOTE, AUTO]
-    assert rig.plc.values()["PLC.Alarms.SupervisorLost"] is False  # never alive: not "lost"
+    assert status_values(rig.plc.status())["PLC.Alarms.SupervisorLost"] is False  # never alive: not "lost"
 
 
 def test_unchanged_heartbeat_is_not_alive() -> None:
@@ -691,7 +699,7 @@ def test_unchanged_heartbeat_is_not_alive() -> None:
     for _ in range(6):
         rig.plc.heartbeat(7)
         out = rig.scan([0.4, 0.2, 0.3])
-    assert out.values["PLC.Supervisor.Alive"] is False  # one change at t = 0, then timeout at 3
+    assert published(out)["PLC.Supervisor.Alive"] is False  # one change at t = 0, then timeout at 3
 
 
 # =========================================================================== interlocks
@@ -718,7 +726,7 @@ def test_interlock_trips_within_one_scan_in_every_mode(mode: LoopMode, superviso
         plc.heartbeat(rig.k)
     out = rig.scan([0.58, 0.19, 0.3])  # at high-high
     assert out.commands[0] == 0.0 and mv(out, "LIC1") == 0.0
-    assert out.values["PLC.Interlock.T1HH"] is True and out.values["PLC.Alarms.T1HH"] is True
+    assert published(out)["PLC.Interlock.T1HH"] is True and published(out)["PLC.Alarms.T1HH"] is True
     assert out.commands[1] > 0.0  # the other tank's pump is not touched
 
 
@@ -731,16 +739,16 @@ def test_interlock_latches_resets_only_below_reset_level_and_on_request() -> Non
     plc.set_sp("LIC1", 0.54)
     rig.scan([0.50, 0.2, 0.3])
     out = rig.scan([0.59, 0.2, 0.3])
-    assert out.values["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
+    assert published(out)["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
     out = rig.scan([0.56, 0.2, 0.3])  # below HH, above reset: latched
-    assert out.values["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
+    assert published(out)["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
     assert plc.reset_interlocks() == []  # 0.56 is not below 0.55
     for _ in range(2):
         out = rig.scan([0.50, 0.2, 0.3])  # below reset, but no request: still latched
-        assert out.values["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
+        assert published(out)["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
     assert plc.reset_interlocks() == ["T1"]
     out = rig.scan([0.50, 0.2, 0.3])
-    assert out.values["PLC.Interlock.T1HH"] is False
+    assert published(out)["PLC.Interlock.T1HH"] is False
     assert out.commands[0] == pytest.approx(KI1 * 0.04, rel=1e-9)
 
 
@@ -751,7 +759,7 @@ def test_manual_loop_does_not_restart_its_pump_after_a_reset() -> None:
     plc.set_manual_mv("LIC1", 1e-4)
     assert rig.scan([0.50, 0.2, 0.3]).commands[0] == 1e-4
     out = rig.scan([0.58, 0.2, 0.3])
-    assert out.commands[0] == 0.0 and out.values["PLC.LIC1.ManualMV"] == 0.0
+    assert out.commands[0] == 0.0 and published(out)["PLC.LIC1.ManualMV"] == 0.0
     rig.scan([0.50, 0.2, 0.3])
     assert plc.reset_interlocks() == ["T1"]
     assert rig.scan([0.50, 0.2, 0.3]).commands[0] == 0.0  # stays off until the operator writes
@@ -762,11 +770,11 @@ def test_manual_loop_does_not_restart_its_pump_after_a_reset() -> None:
 def test_over_range_reading_trips_fail_safe_and_bad_reading_does_not() -> None:
     rig = Rig(energies())
     out = rig.scan([0.70, 0.2, 0.3])  # above the 0..0.62 transmitter range: PV bad, but trips
-    assert out.values["PLC.IO.LT1.Good"] is False
-    assert out.values["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
+    assert published(out)["PLC.IO.LT1.Good"] is False
+    assert published(out)["PLC.Interlock.T1HH"] is True and out.commands[0] == 0.0
     rig2 = Rig(energies())
     out = rig2.scan([0.70, 0.2, 0.3], good=[False, True, True])  # the link flagged it: unknown
-    assert out.values["PLC.Interlock.T1HH"] is False
+    assert published(out)["PLC.Interlock.T1HH"] is False
 
 
 def test_interlock_stops_a_pump_that_no_loop_drives() -> None:
@@ -777,7 +785,7 @@ def test_interlock_stops_a_pump_that_no_loop_drives() -> None:
     rig = Rig(energies(mutate))
     assert rig.scan([0.4, 0.2, 0.3]).commands[1] == 3e-5
     out = rig.scan([0.4, 0.58, 0.3])
-    assert out.commands[1] == 0.0 and out.values["PLC.Interlock.T2HH"] is True
+    assert out.commands[1] == 0.0 and published(out)["PLC.Interlock.T2HH"] is True
 
 
 # =========================================================================== PV quality
@@ -812,29 +820,31 @@ def test_pv_bad_substitutes_after_n_scans_and_resumes_bumplessly(cause: str) -> 
     for _ in range(4):
         out = rig.scan(spell["levels"], good=spell.get("good"), io=spell.get("io", True))
         cmds.append(out.commands.copy())
-        assert out.values["PLC.Alarms.LIC1PvBad"] is True and out.values["PLC.Alarms.LIC2PvBad"] is True
-        assert out.values["PLC.LIC1.PV"] == 0.39  # last good value published
-        assert out.values["PLC.Status.IoHealthy"] is (cause != "link_lost")
+        assert (
+            published(out)["PLC.Alarms.LIC1PvBad"] is True and published(out)["PLC.Alarms.LIC2PvBad"] is True
+        )
+        assert published(out)["PLC.LIC1.PV"] == 0.39  # last good value published
+        assert published(out)["PLC.Status.IoHealthy"] is (cause != "link_lost")
     assert [c[0] for c in cmds] == pytest.approx([4.3964e-6] * 4, rel=1e-9)
     assert [c[1] for c in cmds] == pytest.approx([0.0, 0.0, 2e-5, 2e-5], rel=1e-9, abs=1e-18)
     out = rig.scan(good_levels)
-    assert out.values["PLC.Alarms.LIC1PvBad"] is False
+    assert published(out)["PLC.Alarms.LIC1PvBad"] is False
     assert out.commands == pytest.approx([4.4496e-6, 1.9606e-5], rel=1e-9)
 
 
 def test_frozen_reading_is_bad_after_the_configured_repeats() -> None:
     rig = Rig(energies(lambda d: d["plc"].update(pv_frozen_scans=3)))
-    good = [rig.scan([0.4, 0.2 + 1e-4 * k, 0.3]).values["PLC.IO.LT1.Good"] for k in range(5)]
+    good = [published(rig.scan([0.4, 0.2 + 1e-4 * k, 0.3]))["PLC.IO.LT1.Good"] for k in range(5)]
     # LT1 repeats from the 2nd scan on: 1, 2, 3 repeats -> bad at the 3rd repeat (4th scan).
     assert good == [True, True, True, False, False]
-    assert rig.plc.values()["PLC.IO.LT2.Good"] is True
+    assert status_values(rig.plc.status())["PLC.IO.LT2.Good"] is True
 
 
 def test_io_loss_marks_every_reading_bad_even_if_flagged_good() -> None:
     rig = Rig(energies())
     out = rig.scan([0.4, 0.2, 0.3], good=[True, True, True], io=False)
-    assert out.values["PLC.Status.IoHealthy"] is False and out.values["PLC.Alarms.IoFault"] is True
-    assert not any(out.values[f"PLC.IO.LT{i}.Good"] for i in (1, 2, 3))
+    assert published(out)["PLC.Status.IoHealthy"] is False and published(out)["PLC.Alarms.IoFault"] is True
+    assert not any(published(out)[f"PLC.IO.LT{i}.Good"] for i in (1, 2, 3))
 
 
 @pytest.mark.parametrize("block", ["nlpi", "mrac"])
@@ -894,7 +904,7 @@ def test_mode_transitions_are_bumpless_for_every_block(block: str) -> None:
         plc.heartbeat(rig.k)
         plc.set_mode("LIC1", mode)
         out = rig.scan([h])
-        assert out.values["PLC.LIC1.Mode"] == mode
+        assert published(out)["PLC.LIC1.Mode"] == mode
         assert abs(mv(out, "LIC1") - before) <= 0.01 * 0.2, (block, mode)
         for _ in range(3):
             plc.heartbeat(rig.k)
@@ -1008,13 +1018,13 @@ def test_random_requests_keep_every_invariant(seq: list[tuple[Any, Any, Any]], f
         t += plc.ts_s
         c = out.commands
         assert np.all(np.isfinite(c)) and np.all(c >= lo) and np.all(c <= hi)
-        for key, value in out.values.items():
+        for key, value in published(out).items():
             assert not (isinstance(value, float) and not math.isfinite(value)), key
         for lp in plc.loops:
             g = (
-                out.values[f"PLC.{lp.spec.name}.Kp"],
-                out.values[f"PLC.{lp.spec.name}.Ki"],
-                out.values[f"PLC.{lp.spec.name}.Kd"],
+                published(out)[f"PLC.{lp.spec.name}.Kp"],
+                published(out)[f"PLC.{lp.spec.name}.Ki"],
+                published(out)[f"PLC.{lp.spec.name}.Kd"],
             )
             assert g in admitted[lp.spec.name]  # a whole admitted set, never a mix
             assert lp.pid is not None
@@ -1033,7 +1043,7 @@ def test_random_requests_keep_every_invariant(seq: list[tuple[Any, Any, Any]], f
                 assert np.all(c[plc.pump_tank == il.tank] == 0.0)
         # Rate limit on LIC1 in every mode unless an interlock forced the pump.
         lp1 = plc.loop("LIC1")
-        if not out.values["PLC.Interlock.T1HH"]:
+        if not published(out)["PLC.Interlock.T1HH"]:
             assert abs(lp1.mv - prev["LIC1"]) <= 2e-5 * (1 + 1e-9)
 
     for kind, a, b in seq:
@@ -1107,8 +1117,8 @@ def test_random_requests_on_single_loop_blocks_stay_in_range(block: str, seq: li
         t += plc.ts_s
         u = float(out.commands[0])
         assert math.isfinite(u) and 0.0 <= u <= 0.2
-        assert all(not (isinstance(v, float) and not math.isfinite(v)) for v in out.values.values())
-        if out.values["PLC.Interlock.T1HH"]:
+        assert all(not (isinstance(v, float) and not math.isfinite(v)) for v in published(out).values())
+        if published(out)["PLC.Interlock.T1HH"]:
             assert u == 0.0
         else:
             assert abs(u - prev) <= 0.05 * (1 + 1e-9)  # rate limit in every mode
@@ -1191,10 +1201,10 @@ def test_zero_cross_gains_scan_like_two_single_loops(seq: list[tuple[Any, Any, A
         a, b = (plc.scan(ScanInputs(t, lv.copy(), good, quality != "io")) for plc in (fast, ref))
         t += fast.ts_s
         np.testing.assert_array_equal(a.commands, b.commands)  # exactly (a zero's sign aside)
-        assert a.values.keys() == b.values.keys()
-        for key, value in a.values.items():
-            assert type(value) is type(b.values[key]), key
-            assert value == b.values[key], key
+        assert published(a).keys() == published(b).keys()
+        for key, value in published(a).items():
+            assert type(value) is type(published(b)[key]), key
+            assert value == published(b)[key], key
 
     def request(plc: PlcProgram, kind: str, a: Any, b: Any) -> object:
         """Apply one request; its answer (a status, the tanks reset, or the refusal)."""

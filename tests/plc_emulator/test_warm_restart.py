@@ -17,6 +17,7 @@ from helpers import ROOT
 from plant_sim.plant import PlantSimulator
 from plant_sim.server import PlantServer
 from plc_emulator.program import PlcProgram, ScanInputs
+from plc_emulator.publish import status_values
 from tanklab.config import SiteConfig, load_site
 from tanklab.enums import GainSource, LoopMode, SensorFault
 from tanklab_io import persist
@@ -33,7 +34,7 @@ def _scan(program: PlcProgram, levels: list[float], t_s: float | None = None) ->
 
 
 def _retentive_values(program: PlcProgram) -> dict[str, Any]:
-    v = program.values()
+    v = status_values(program.status())
     keys = [f"PLC.{lp}.{item}" for lp in SITE.loop_names for item in RETENTIVE]
     keys += [f"PLC.Interlock.{t}HH" for t in ("T1", "T2")] + ["PLC.Status.Scan", "PLC.Status.ModelTime"]
     return {k: v[k] for k in keys}
@@ -98,7 +99,7 @@ def test_warm_start_first_scan_continues_from_the_pumps_command_without_a_jump()
     warm = PlcProgram(SITE)
     warm.restore_retained(data)
     warm.resume_from_plant(np.array([6.0e-5, 3.0e-5]), np.array([0.39, 0.2, 0.3]), np.ones(3, dtype=bool))
-    v = warm.values()
+    v = status_values(warm.status())
     assert v["PLC.LIC1.MV"] == 6.0e-5 and v["PLC.LIC2.MV"] == 3.0e-5  # shown before the first scan
     assert v["PLC.LIC1.PV"] == 0.39 and v["PLC.IO.LT3.PV"] == 0.3
     out = warm.scan(ScanInputs(warm.next_scan_t_s, np.array([0.39, 0.2, 0.3]), np.ones(3, dtype=bool)))
@@ -120,7 +121,7 @@ def test_warm_start_in_remote_holds_the_pumps_command_and_manual_applies_the_ope
     b = PlcProgram(SITE)
     assert b.restore_retained(json.loads(json.dumps(a.retained()))) == []
     b.resume_from_plant(np.array([7.0e-5, 2.0e-5]), np.array([0.4, 0.2, 0.3]), np.ones(3, dtype=bool))
-    assert b.values()["PLC.LIC1.RemoteMV"] == 7.0e-5
+    assert status_values(b.status())["PLC.LIC1.RemoteMV"] == 7.0e-5
     out = b.scan(ScanInputs(b.next_scan_t_s, np.array([0.4, 0.2, 0.3]), np.ones(3, dtype=bool)))
     assert out.commands.tolist() == [7.0e-5, 4.0e-5]
 
@@ -132,7 +133,7 @@ def test_warm_start_without_the_plant_resumes_from_the_retained_mv() -> None:
     mv = a.loop("LIC1").mv
     b = PlcProgram(SITE)
     b.restore_retained(json.loads(json.dumps(a.retained())))
-    assert b.values()["PLC.LIC1.MV"] == mv
+    assert status_values(b.status())["PLC.LIC1.MV"] == mv
     b.resume_from_plant(np.array([math.nan, math.nan]), np.full(3, math.nan), np.zeros(3, dtype=bool))
     assert b.loop("LIC1").mv == mv
 

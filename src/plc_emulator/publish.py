@@ -1,0 +1,111 @@
+"""The PLC's nodes of a :class:`plc_emulator.status.PlcStatus`: the one place that knows which
+node shows which part of the program's state.
+
+:func:`status_values` maps a status to the contract's paths (:mod:`tanklab.paths` builders
+only). The PLC server publishes it every scan (:meth:`plc_emulator.server.PlcServer.publish_status`),
+and the co-simulation's in-process port reads the supervisor's snapshot from it
+(``tankctl.cosim.ProgramPort``), as the supervisor's one Read sees the server's nodes. It lives
+beside the server rather than in it because the co-simulation must not import asyncua
+(decision 0023).
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Any
+
+from plc_emulator.status import PlcStatus
+from tanklab import paths
+
+__all__ = ["RUNTIME_OWNED_TAGS", "status_values"]
+
+RUNTIME_OWNED_TAGS = (
+    paths.plc.scan_period,
+    paths.plc.last_scan_duration,
+    paths.plc.overruns,
+    paths.plc.heartbeat,
+    paths.plc.supervisor_timeout,
+    *paths.link_status_paths(paths.plc.plant_link).values(),
+)
+"""PLC variables the runtime publishes, not :func:`status_values` (plus ``PLC.LIC*.Block`` and
+``PLC.Identity.*``, constant): its scan timing, the supervisor's heartbeat and timeout, and its
+field link's status."""
+
+
+def status_values(status: PlcStatus) -> dict[str, Any]:
+    """The PLC's node values of ``status``, keyed by tag path, as plain Python types.
+
+    Every variable of :func:`tanklab.tags.plc_tags` except :data:`RUNTIME_OWNED_TAGS`,
+    ``PLC.LIC*.Block`` and ``PLC.Identity.*``, each once. Enumerations are published as their
+    ints, a block without PID gains as Kp = Ki = Kd = 0, ``PLC.Alarms.IoFault`` as not
+    ``io_healthy``.
+    """
+    v: dict[str, Any] = {}
+    for lp in status.loops:
+        sp, sp_low, sp_high, pv, mv, mode, manual, remote, kp, ki, kd, source, pv_bad = _loop_paths(lp.name)
+        v[sp] = lp.sp_m
+        v[sp_low] = lp.sp_low_m
+        v[sp_high] = lp.sp_high_m
+        v[pv] = lp.pv_m
+        v[mv] = lp.mv
+        v[mode] = int(lp.mode)
+        v[manual] = lp.manual_mv
+        v[remote] = lp.remote_mv
+        g = lp.gains
+        if g is None:
+            v[kp] = v[ki] = v[kd] = 0.0
+        else:
+            v[kp], v[ki], v[kd] = g.kp, g.ki, g.kd
+        v[source] = int(lp.gain_source)
+        v[pv_bad] = lp.pv_bad
+    plc = paths.plc
+    v[plc.scan] = status.scan
+    v[plc.io_healthy] = status.io_healthy
+    v[plc.model_time] = status.t_s
+    v[plc.supervisor_alive] = status.supervisor_alive
+    v[plc.io_fault] = not status.io_healthy
+    v[plc.supervisor_lost] = status.supervisor_lost
+    for tank in status.tanks:
+        pv, good, high, low, high_high = _tank_paths(tank.name)
+        v[pv] = tank.pv_m
+        v[good] = tank.good
+        v[high] = tank.high
+        v[low] = tank.low
+        v[high_high] = tank.high_high
+    for il in status.interlocks:
+        v[plc.interlock(il.tank)] = il.tripped
+    return v
+
+
+@cache
+def _loop_paths(loop: str) -> tuple[str, ...]:
+    """A loop's published paths in :func:`status_values` order."""
+    lp = paths.plc.loop(loop)
+    return (
+        lp.sp,
+        lp.sp_low,
+        lp.sp_high,
+        lp.pv,
+        lp.mv,
+        lp.mode,
+        lp.manual_mv,
+        lp.remote_mv,
+        lp.kp,
+        lp.ki,
+        lp.kd,
+        lp.gain_source,
+        paths.plc.pv_bad_alarm(loop),
+    )
+
+
+@cache
+def _tank_paths(tank: str) -> tuple[str, ...]:
+    """A tank's published paths in :func:`status_values` order: IO PV and Good, alarms H, L, HH."""
+    io = paths.plc.io(tank)
+    return (
+        io.pv,
+        io.good,
+        paths.plc.alarm(tank, "H"),
+        paths.plc.alarm(tank, "L"),
+        paths.plc.alarm(tank, "HH"),
+    )
