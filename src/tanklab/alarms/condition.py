@@ -51,7 +51,16 @@ from tanklab.alarms.model import (
     ShelvingState,
 )
 
-__all__ = ["LIMIT_ORDER", "Condition", "EventIds", "ProcessState"]
+__all__ = [
+    "ACTIVE",
+    "AT_LIMIT",
+    "LIMIT_ORDER",
+    "NORMAL",
+    "Condition",
+    "EventIds",
+    "ProcessState",
+    "process_state",
+]
 
 LIMIT_ORDER = (LimitState.HIGH_HIGH, LimitState.HIGH, LimitState.LOW, LimitState.LOW_LOW)
 """The order of ``AlarmDefinition.limits_m`` and ``limit_priorities``."""
@@ -93,6 +102,17 @@ class ProcessState:
 
 
 NORMAL = ProcessState(False, None)
+ACTIVE = ProcessState(True, None)
+"""A discrete alarm active."""
+AT_LIMIT = {limit: ProcessState(True, limit) for limit in LimitState}
+"""A level alarm active at each limit."""
+
+
+def process_state(active: bool, limit: LimitState | None = None) -> ProcessState:
+    """The shared instance of a state (the manager compares states by identity)."""
+    if not active:
+        return NORMAL
+    return ACTIVE if limit is None else AT_LIMIT[limit]
 
 
 class Condition:

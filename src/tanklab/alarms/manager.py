@@ -37,7 +37,16 @@ from collections.abc import Collection, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from tanklab.alarms.condition import LIMIT_ORDER, NORMAL, Condition, EventIds, ProcessState
+from tanklab.alarms.condition import (
+    ACTIVE,
+    AT_LIMIT,
+    LIMIT_ORDER,
+    NORMAL,
+    Condition,
+    EventIds,
+    ProcessState,
+    process_state,
+)
 from tanklab.alarms.model import (
     AlarmDefinition,
     AlarmSummary,
@@ -119,7 +128,7 @@ def classify_level(
     flags = (f_hh, f_h, f_l, f_ll)
     for on, limit in ((f_hh, _HH), (f_h, _H), (f_ll, _LL), (f_l, _L)):
         if on:
-            return ProcessState(True, limit), flags
+            return AT_LIMIT[limit], flags
     return NORMAL, flags
 
 
@@ -181,6 +190,7 @@ class AlarmManager:
             d.name: Condition(d, self.ids, max_shelving_time_s=max_shelving_time_s) for d in definitions
         }
         self._tracks = {d.name: _Track() for d in definitions}
+        self._rows = [(d, self._conditions[d.name], self._tracks[d.name]) for d in definitions]
         self._annunciated: deque[float] = deque()
         self.t_s = 0.0
 
@@ -214,21 +224,25 @@ class AlarmManager:
             raise KeyError(f"unknown alarms {sorted(unknown)}")
         self.t_s = t_s
         events: list[ConditionEvent] = []
-        for d in self.definitions:
-            cond = self._conditions[d.name]
-            tr = self._tracks[d.name]
+        unshelved = ShelvingState.UNSHELVED
+        # Each step is skipped when it cannot change anything (a steady scan is mostly that).
+        for d, cond, tr in self._rows:
             inp = inputs.get(d.name)
+            if inp is not None and bool(inp.good) != cond.quality_good:
+                events += cond.set_quality(bool(inp.good), t_s)
+            suppressed = d.suppress_when_manual is not None and d.suppress_when_manual in manual
+            if suppressed != cond.suppressed:
+                events += cond.set_suppressed(suppressed, t_s)
             if inp is not None:
                 tr.good = bool(inp.good)
-                events += cond.set_quality(tr.good, t_s)
-            suppressed = d.suppress_when_manual is not None and d.suppress_when_manual in manual
-            events += cond.set_suppressed(suppressed, t_s)
-            if inp is not None:
-                before = cond.activations
-                events += cond.update_process(self._filter(d, tr, inp, t_s), t_s)
-                if cond.activations != before and cond.annunciating:
-                    self._annunciated.append(t_s)
-            events += cond.tick(t_s)
+                state = self._filter(d, tr, inp, t_s)
+                if state is not cond.process:
+                    before = cond.activations
+                    events += cond.update_process(state, t_s)
+                    if cond.activations != before and cond.annunciating:
+                        self._annunciated.append(t_s)
+            if cond.shelving is not unshelved:
+                events += cond.tick(t_s)
         return events
 
     def _filter(self, d: AlarmDefinition, tr: _Track, inp: AlarmInput, t_s: float) -> ProcessState:
@@ -237,13 +251,13 @@ class AlarmManager:
             assert d.limits_m is not None
             raw, flags = classify_level(float(inp.value), tr.good, d.limits_m, d.deadband_m, tr.raw_flags)
         else:
-            raw, flags = ProcessState(bool(inp.value)), _OFF
+            raw, flags = (ACTIVE if inp.value else NORMAL), _OFF
         tr.raw, tr.raw_flags = raw, flags
-        if raw == tr.state:
+        if raw is tr.state:
             tr.pending = None
             tr.flags = flags
             return tr.state
-        if tr.pending != raw:
+        if tr.pending is not raw:
             tr.pending, tr.since_s = raw, t_s
         delay = d.on_delay_s if raw.active else d.off_delay_s
         if t_s - tr.since_s < delay:
@@ -399,7 +413,7 @@ class AlarmManager:
         else:
             raise ValueError(f"shelved_until_s {until!r} is not a finite time")
         # Every check passed: apply all of it.
-        state = ProcessState(flags["active"], limit)
+        state = process_state(flags["active"], limit)
         tr = self._tracks[name]
         tr.state = tr.raw = state
         tr.flags = tr.raw_flags = (limit is _HH, limit is _H, limit is _L, limit is _LL)
