@@ -32,7 +32,9 @@ A scan (period Ts of model time) does, in order:
    bumplessly after the reset and no pump restarts by itself at an old manual value.
 6. **Write outputs**: one command per pump, in the pump's own unit, always inside the pump's
    command range.
-7. **Publish**: every PLC node's value the program owns, keyed by tag path (``values()``).
+7. **Alarms**: the alarm manager (``plc_emulator.alarms``, docs/alarms.md) takes the scan's
+   state; its events are kept for the OPC UA projection, its booleans are ``PLC.Alarms.*``.
+8. **Publish**: every PLC node's value the program owns, keyed by tag path (``values()``).
 
 Gain sources (``tanklab.enums.GainSource``, one per PID loop):
 
@@ -62,6 +64,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from plc_emulator import retain
+from plc_emulator.alarms import PlcAlarms
 from plc_emulator.interlocks import Interlock, latch, reset_trips
 from plc_emulator.loops import ERROR_SCALE, Group, Loop, build_groups, group_gains, make_loops
 from plc_emulator.pid import Pid
@@ -142,6 +145,7 @@ class PlcProgram:
     site : a site config with a ``plc`` section.
     watchdog_timeout_s : heartbeat timeout in model time; default: the config's (the runtime
         raises it to a wall-clock floor at high speed).
+    alarm_event_prefix : the alarms' EventId prefix, unique per process (the runtime's).
 
     Raises
     ------
@@ -150,7 +154,9 @@ class PlcProgram:
         coupled by cross gains disagree on ``pv_bad_scans`` or ``derivative_filter_s``.
     """
 
-    def __init__(self, site: SiteConfig, *, watchdog_timeout_s: float | None = None) -> None:
+    def __init__(
+        self, site: SiteConfig, *, watchdog_timeout_s: float | None = None, alarm_event_prefix: bytes = b""
+    ) -> None:
         if site.plc is None:
             raise ValueError(f"site {site.name!r} has no plc section")
         self.site = site
@@ -206,6 +212,7 @@ class PlcProgram:
         self.pid_groups: list[Group]
         self.groups: list[Group]
         self.pid_groups, self.groups = build_groups(self.loops, self.ts_s)
+        self.alarms = PlcAlarms(site, event_prefix=alarm_event_prefix)
 
     # ---- state after the last scan (arrays built on request) -----------------------------
 
@@ -421,8 +428,9 @@ class PlcProgram:
         Per loop: SP, the engineer's SP limits, mode, manual MV, the applied gains and their source
         (ENGINEER included: an engineer's hold survives a restart) and the last MV (the fallback
         start value when the plant cannot be read at start). Latched interlocks (a trip survives
-        a restart until an operator resets it), the scan counter (scans run so far) and the model
-        time at the start of the last scan [s].
+        a restart until an operator resets it), the scan counter (scans run so far), the model
+        time at the start of the last scan [s] and the alarms' state (enabled, active, acked,
+        confirmed, comment, shelving: ``AlarmManager.to_retain``).
         """
         return retain.retained(self)
 
@@ -481,8 +489,11 @@ class PlcProgram:
             shell.set_remote_mv(lp.slot, mv)
 
     def reset_interlocks(self) -> list[str]:
-        """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""
-        return reset_trips(self.interlocks, self._levels_m, self._good)
+        """Reset latched trips whose (good) level is below the reset level; return the tanks reset
+        (their trip alarms reset at the next scan)."""
+        reset = reset_trips(self.interlocks, self._levels_m, self._good)
+        self.alarms.interlocks_reset(reset)
+        return reset
 
     # ---- the scan -----------------------------------------------------------------------
 
@@ -511,6 +522,7 @@ class PlcProgram:
         self._read_inputs(levels.tolist(), delivered.tolist(), bool(inputs.io_healthy))
         self._execute_blocks()
         self._write_outputs(self._apply_interlocks())
+        self.alarms.scan(self)
         self.scan_count += 1
         return ScanOutputs(
             commands=np.array(self._commands, dtype=float), values=self.values() if publish else {}
@@ -655,6 +667,7 @@ class PlcProgram:
         quality on ``PLC.IO.LT*.Good`` and ``PLC.Alarms.LIC*PvBad``.
         """
         v: dict[str, Any] = {}
+        alarms = self.alarms.booleans()
         for lp in self.loops:
             n = paths.plc.loop(lp.spec.name)
             v[n.sp] = float(lp.sp_m)
@@ -669,22 +682,22 @@ class PlcProgram:
             v[n.ki] = float(g.ki) if g else 0.0
             v[n.kd] = float(g.kd) if g else 0.0
             v[n.gain_source] = int(lp.source)
-            v[paths.plc.pv_bad_alarm(lp.spec.name)] = bool(lp.pv_bad)
+            pv_bad = paths.plc.pv_bad_alarm(lp.spec.name)
+            v[pv_bad] = alarms[pv_bad]
         v[paths.plc.scan] = int(self.scan_count)
         v[paths.plc.io_healthy] = bool(self.io_healthy)
         v[paths.plc.model_time] = float(self.t_s)
         v[paths.plc.supervisor_alive] = bool(self.watchdog.alive)
-        v[paths.plc.io_fault] = not self.io_healthy
-        v[paths.plc.supervisor_lost] = bool(self.watchdog.ever_alive and not self.watchdog.alive)
+        v[paths.plc.io_fault] = alarms[paths.plc.io_fault]
+        v[paths.plc.supervisor_lost] = alarms[paths.plc.supervisor_lost]
         for i, name in enumerate(self.site.tank_names):
-            level = self._levels_m[i]
             ok = self._good[i]
             io = paths.plc.io(name)
             v[io.pv] = self._last_good_m[i]
             v[io.good] = ok
-            v[paths.plc.alarm(name, "H")] = bool(ok and level >= self.high_m[i])
-            v[paths.plc.alarm(name, "L")] = bool(ok and level <= self.low_m[i])
-            v[paths.plc.alarm(name, "HH")] = bool(self._raw_m[i] >= self.hh_m[i])
+            for kind in ("H", "L", "HH"):
+                path = paths.plc.alarm(name, kind)
+                v[path] = alarms[path]
         for il in self.interlocks:
             v[paths.plc.interlock(il.tank_name)] = bool(il.tripped)
         return v

@@ -1,41 +1,64 @@
-"""The alarm manager's booleans equal today's ``PLC.Alarms.*`` values scan for scan, for every
-shipped PLC config, when the level deadbands are 0 (the meaning the contract keeps)."""
+"""The ``PLC.Alarms.*`` booleans, now the alarm manager's, keep today's meaning scan for scan for
+every shipped PLC config: with the level deadbands at 0 they equal the formulas the program used
+before the alarm core (``level >= high`` and ``level <= low`` with a good reading, ``reading >=
+high_high``, the bad-PV flags, the field link, the watchdog); with the default 2 % deadband they
+differ only while the reading lies inside a band that an active limit's flag is holding."""
 
 from __future__ import annotations
 
+import copy
 import math
-from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from plc_emulator.program import PlcProgram, ScanInputs
 from tanklab import paths
 from tanklab.alarms import names
-from tanklab.alarms.definitions import plc_alarms
-from tanklab.alarms.manager import AlarmInput, AlarmManager
-from tanklab.alarms.model import ConditionKind
-from tanklab.config import load_site
+from tanklab.config import SiteConfig, load_site, site_from_mapping
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = [p for p in sorted((ROOT / "configs").glob("*.yaml")) if load_site(p).plc is not None]
 
 
-@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
-def test_booleans_match_the_program_values(path: Path) -> None:
-    site = load_site(path)
+def without_deadband(path: Path) -> SiteConfig:
+    data: dict[str, Any] = copy.deepcopy(yaml.safe_load(path.read_text()))
+    tanks = [t["name"] for t in data["plant"]["tanks"]]
+    data["plc"]["alarms"] = {"overrides": {names.level(t): {"deadband_m": 0.0} for t in tanks}}
+    return site_from_mapping(data)
+
+
+def todays(program: PlcProgram, levels: np.ndarray, delivered: np.ndarray, io: bool) -> dict[str, bool]:
+    """The booleans as ``PlcProgram.values`` computed them before the alarm core."""
+    v: dict[str, bool] = {}
+    for lp in program.loops:
+        v[paths.plc.pv_bad_alarm(lp.spec.name)] = bool(lp.pv_bad)
+    v[paths.plc.io_fault] = not program.io_healthy
+    v[paths.plc.supervisor_lost] = bool(program.watchdog.ever_alive and not program.watchdog.alive)
+    good = program.good
+    for i, tank in enumerate(program.site.tank_names):
+        raw = levels[i] if delivered[i] and io and math.isfinite(levels[i]) else math.nan
+        used = levels[i] if good[i] else math.nan
+        v[paths.plc.alarm(tank, "H")] = bool(good[i] and used >= program.high_m[i])
+        v[paths.plc.alarm(tank, "L")] = bool(good[i] and used <= program.low_m[i])
+        v[paths.plc.alarm(tank, "HH")] = bool(raw >= program.hh_m[i])
+    return v
+
+
+def run(site: SiteConfig, check: Any) -> int:
+    """400 random scans (readings all over the range, NaN, undelivered, link failures, a
+    supervisor that comes and goes, interlock resets); ``check`` per scan; return alarms seen."""
     program = PlcProgram(site)
-    defs = tuple(
-        replace(d, deadband_m=0.0) if d.kind is ConditionKind.EXCLUSIVE_LEVEL else d for d in plc_alarms(site)
-    )
-    alarms = AlarmManager(defs, event_prefix=b"t")
     rng = np.random.default_rng(15)
     n = program.n_tanks
     hmax = np.array([t.height_max_m for t in site.plant.tanks])
-    checked = 0
+    before = program.values()
+    assert before[paths.plc.io_fault] is True  # before the first scan: as it always was
+    seen = 0
     for k in range(400):
-        t_s = k * program.ts_s
         levels = rng.uniform(-0.05, 1.1, n) * hmax
         levels[rng.random(n) < 0.05] = math.nan
         delivered = rng.random(n) > 0.1
@@ -44,22 +67,42 @@ def test_booleans_match_the_program_values(path: Path) -> None:
             program.heartbeat(k)
         if k % 50 == 0:
             program.reset_interlocks()
-        values = program.scan(ScanInputs(t_s=t_s, levels_m=levels, good=delivered, io_healthy=io)).values
-        good = program.good
-        inputs = {}
-        for i, tank in enumerate(site.tank_names):
-            raw = levels[i] if delivered[i] and io and math.isfinite(levels[i]) else math.nan
-            inputs[names.level(tank)] = AlarmInput(float(raw), bool(good[i]))
-        for lp in program.loops:
-            inputs[names.pv_bad(lp.spec.name)] = AlarmInput(bool(lp.pv_bad))
-        inputs[names.IO_FAULT] = AlarmInput(not program.io_healthy)
-        wd = program.watchdog
-        inputs[names.SUPERVISOR_LOST] = AlarmInput(bool(wd.ever_alive and not wd.alive))
-        for il in program.interlocks:
-            inputs[names.trip(il.tank_name)] = AlarmInput(bool(il.tripped))
-        alarms.scan(inputs, t_s)
-        got = alarms.booleans()
-        assert got == {p: values[p] for p in got}, f"scan {k}"
-        checked += sum(got.values())
-    assert checked > 100  # the trace does raise alarms
-    assert set(got) == {p for p in values if p.startswith(paths.plc.alarms_prefix)}
+        values = program.scan(ScanInputs(k * program.ts_s, levels, delivered, io)).values
+        expect = todays(program, levels, delivered, io)
+        got = {p: values[p] for p in expect}
+        check(program, levels, expect, got, k)
+        seen += sum(got.values())
+    assert set(expect) == {p for p in values if p.startswith(paths.plc.alarms_prefix)}
+    return seen
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
+def test_without_deadband_the_booleans_are_todays(path: Path) -> None:
+    def check(program: PlcProgram, levels: np.ndarray, expect: dict, got: dict, k: int) -> None:
+        assert got == expect, f"scan {k}"
+
+    assert run(without_deadband(path), check) > 100  # the trace does raise alarms
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
+def test_with_the_default_deadband_they_differ_only_inside_a_band(path: Path) -> None:
+    site = load_site(path)
+    # boolean path -> (tank index, index of its limit in limits_m)
+    limit_of = {
+        paths.plc.alarm(t, kind): (i, j)
+        for i, t in enumerate(site.tank_names)
+        for j, kind in ((0, "HH"), (1, "H"), (2, "L"))
+    }
+
+    def check(program: PlcProgram, levels: np.ndarray, expect: dict, got: dict, k: int) -> None:
+        for p, want in expect.items():
+            if got[p] == want:
+                continue
+            assert p in limit_of and got[p] and not want, f"scan {k}: {p}"  # held, never early
+            i, j = limit_of[p]
+            d = program.alarms.manager.definitions[i]
+            assert d.limits_m is not None
+            limit = d.limits_m[j]
+            assert limit is not None and abs(levels[i] - limit) <= d.deadband_m + 1e-12, f"scan {k}: {p}"
+
+    run(site, check)

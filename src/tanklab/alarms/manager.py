@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -132,6 +132,17 @@ def classify_level(
     return NORMAL, flags
 
 
+def _quiet(d: AlarmDefinition) -> tuple[float, float]:
+    """The open interval of readings that set no limit flag of a level alarm at normal (an empty
+    one for the other kinds: NaN compares false)."""
+    if d.limits_m is None:
+        return (math.nan, math.nan)
+    hh, h, lo, ll = d.limits_m
+    highs = [v for v in (hh, h) if v is not None]
+    lows = [v for v in (lo, ll) if v is not None]
+    return (max(lows, default=-math.inf), min(highs, default=math.inf))
+
+
 @dataclass(slots=True)
 class _Track:
     """The manager's per-alarm memory between scans."""
@@ -148,6 +159,10 @@ class _Track:
     """Model time ``pending`` was first seen [s]."""
     good: bool = True
     """The input's quality in the last scan."""
+    last: float | bool | None = None
+    """The input of the last scan (None before the first)."""
+    primed: bool = False
+    """``state`` was set by :meth:`AlarmManager.prime`: the first input replaces it at once."""
 
 
 class AlarmManager:
@@ -190,8 +205,10 @@ class AlarmManager:
             d.name: Condition(d, self.ids, max_shelving_time_s=max_shelving_time_s) for d in definitions
         }
         self._tracks = {d.name: _Track() for d in definitions}
-        self._rows = [(d, self._conditions[d.name], self._tracks[d.name]) for d in definitions]
+        self._rows = [(d, self._conditions[d.name], self._tracks[d.name], *_quiet(d)) for d in definitions]
         self._annunciated: deque[float] = deque()
+        self._booleans: dict[str, bool] | None = None
+        """:meth:`booleans` as last built (None: to be rebuilt; most scans change none)."""
         self.t_s = 0.0
 
     # ---- access --------------------------------------------------------------------------
@@ -222,20 +239,58 @@ class AlarmManager:
         unknown = set(inputs) - self._conditions.keys()
         if unknown:
             raise KeyError(f"unknown alarms {sorted(unknown)}")
+        got = [inputs.get(d.name) for d in self.definitions]
+        values = [None if i is None else i.value for i in got]
+        good = [True if i is None else bool(i.good) for i in got]
+        return self.scan_values(values, good, t_s, manual=manual)
+
+    def scan_values(
+        self,
+        values: Sequence[float | bool | None],
+        good: Sequence[bool],
+        t_s: float,
+        *,
+        manual: Collection[str] = (),
+    ) -> list[ConditionEvent]:
+        """:meth:`scan` with the inputs as two sequences in definition order (the tier's scan
+        fills them in place: no mapping, no objects); a value None leaves that alarm's input out.
+
+        Raises
+        ------
+        ValueError
+            A sequence does not have one entry per definition.
+        """
+        n = len(self._rows)
+        if len(values) != n or len(good) != n:
+            raise ValueError(f"scan_values needs {n} values and qualities, got {len(values)} and {len(good)}")
         self.t_s = t_s
         events: list[ConditionEvent] = []
         unshelved = ShelvingState.UNSHELVED
         # Each step is skipped when it cannot change anything (a steady scan is mostly that).
-        for d, cond, tr in self._rows:
-            inp = inputs.get(d.name)
-            if inp is not None and bool(inp.good) != cond.quality_good:
-                events += cond.set_quality(bool(inp.good), t_s)
+        for (d, cond, tr, q_lo, q_hi), x, ok in zip(self._rows, values, good, strict=True):
+            if x is not None and ok != cond.quality_good:
+                events += cond.set_quality(ok, t_s)
             suppressed = d.suppress_when_manual is not None and d.suppress_when_manual in manual
             if suppressed != cond.suppressed:
                 events += cond.set_suppressed(suppressed, t_s)
-            if inp is not None:
-                tr.good = bool(inp.good)
-                state = self._filter(d, tr, inp, t_s)
+            # Skip the filter where it cannot change anything: nothing pending and the same input
+            # again (the deadband flags are idempotent for a constant reading), or a level alarm
+            # at normal with a good reading strictly between its limits.
+            if x is None:
+                pass
+            elif (
+                tr.pending is None
+                and not tr.primed
+                and ok == tr.good
+                and (x == tr.last or (ok and q_lo < x < q_hi and tr.state is NORMAL))
+            ):
+                tr.last = x
+            else:
+                tr.good, tr.last = ok, x
+                shown = (tr.state, tr.flags)
+                state = self._filter(d, tr, x, t_s)
+                if self._booleans is not None and (tr.state, tr.flags) != shown:
+                    self._booleans = None
                 if state is not cond.process:
                     before = cond.activations
                     events += cond.update_process(state, t_s)
@@ -245,14 +300,18 @@ class AlarmManager:
                 events += cond.tick(t_s)
         return events
 
-    def _filter(self, d: AlarmDefinition, tr: _Track, inp: AlarmInput, t_s: float) -> ProcessState:
-        """Steps 1-3 of the module docstring: the new ActiveState of ``d``."""
+    def _filter(self, d: AlarmDefinition, tr: _Track, x: float | bool, t_s: float) -> ProcessState:
+        """Steps 1-3 of the module docstring: the new ActiveState of ``d`` for input ``x``."""
         if d.kind is ConditionKind.EXCLUSIVE_LEVEL:
             assert d.limits_m is not None
-            raw, flags = classify_level(float(inp.value), tr.good, d.limits_m, d.deadband_m, tr.raw_flags)
+            raw, flags = classify_level(float(x), tr.good, d.limits_m, d.deadband_m, tr.raw_flags)
         else:
-            raw, flags = (ACTIVE if inp.value else NORMAL), _OFF
+            raw, flags = (ACTIVE if x else NORMAL), _OFF
         tr.raw, tr.raw_flags = raw, flags
+        if tr.primed:
+            tr.primed = False
+            tr.state, tr.flags, tr.pending = raw, flags, None
+            return raw
         if raw is tr.state:
             tr.pending = None
             tr.flags = flags
@@ -268,6 +327,14 @@ class AlarmManager:
         tr.state, tr.flags = raw, flags
         return raw
 
+    def prime(self, name: str, active: bool) -> None:
+        """Before the first scan: the state a discrete alarm's boolean shows (a tier's initial node
+        value, e.g. the PLC's IoFault before it has read anything). The condition is left as it
+        is, and the first input replaces the primed state at once (no delay, no event from it)."""
+        tr = self._tracks[name]
+        tr.state, tr.primed = (ACTIVE if active else NORMAL), True
+        self._booleans = None
+
     def reset(self, name: str, t_s: float) -> list[ConditionEvent]:
         """Reset a latched alarm whose input is back to normal (its events; [] if nothing to
         reset). KeyError for an unknown name."""
@@ -276,6 +343,7 @@ class AlarmManager:
         if not (cond.definition.latched and tr.state.active and not tr.raw.active):
             return []
         tr.state, tr.flags, tr.pending = tr.raw, tr.raw_flags, None
+        self._booleans = None
         return cond.update_process(tr.raw, t_s)
 
     # ---- calls ---------------------------------------------------------------------------
@@ -329,6 +397,8 @@ class AlarmManager:
         ``level <= low`` (good reading) and ``reading >= high_high``, whatever the order of the
         limits (a site may put its trip below its high switch).
         """
+        if self._booleans is not None:
+            return dict(self._booleans)
         out: dict[str, bool] = {}
         for d in self.definitions:
             tr = self._tracks[d.name]
@@ -338,7 +408,8 @@ class AlarmManager:
                 for path, on in zip(d.limit_boolean_paths, tr.flags, strict=True):
                     if path is not None:
                         out[path] = on
-        return out
+        self._booleans = out
+        return dict(out)
 
     # ---- retentive memory ----------------------------------------------------------------
 
@@ -417,7 +488,8 @@ class AlarmManager:
         tr = self._tracks[name]
         tr.state = tr.raw = state
         tr.flags = tr.raw_flags = (limit is _HH, limit is _H, limit is _L, limit is _LL)
-        tr.pending = None
+        tr.pending, tr.last = None, None
+        self._booleans = None
         c.restore(
             state,
             enabled=flags["enabled"],

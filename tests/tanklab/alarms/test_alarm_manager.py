@@ -349,3 +349,13 @@ def test_retain_refuses_bad_entries_whole() -> None:
     assert len(skipped) == 4 and any("Gone" in s for s in skipped)
     assert [s.retain for s in m.snapshots()] == [False, False, False]
     assert m.condition("T1Trip").shelving is ShelvingState.UNSHELVED
+
+
+def test_a_primed_boolean_is_replaced_by_the_first_input_without_an_event() -> None:
+    m = manager(replace(PVBAD, off_delay_s=10.0))
+    m.prime("LIC1PvBad", True)
+    assert m.booleans() == {"b.PvBad": True} and not m.condition("LIC1PvBad").active
+    assert m.scan({"LIC1PvBad": AlarmInput(False)}, 0.0) == []  # no off-delay, no event
+    assert m.booleans() == {"b.PvBad": False}
+    m.prime("LIC1PvBad", True)
+    assert reasons(m.scan({"LIC1PvBad": AlarmInput(True)}, 1.0)) == ["active"]
