@@ -37,6 +37,7 @@ PURE_MODULES = [
     "plc_emulator/mrac.py",
     "plc_emulator/tuning.py",
     "plc_emulator/program.py",
+    "plc_emulator/alarms.py",
     "plc_emulator/manual_auto.py",
     "tanklab/checks.py",
     "supervisor/mpc/__init__.py",
