@@ -295,10 +295,18 @@ class AlarmManager:
                     before = cond.activations
                     events += cond.update_process(state, t_s)
                     if cond.activations != before and cond.annunciating:
-                        self._annunciated.append(t_s)
+                        self._annunciate(t_s)
             if cond.shelving is not unshelved:
                 events += cond.tick(t_s)
         return events
+
+    def _annunciate(self, t_s: float) -> None:
+        """Count an annunciated activation; forget those out of the rate window (bounded memory
+        whether or not anyone asks for the summary)."""
+        q = self._annunciated
+        q.append(t_s)
+        while q[0] <= t_s - self.rate_window_s:
+            q.popleft()
 
     def _filter(self, d: AlarmDefinition, tr: _Track, x: float | bool, t_s: float) -> ProcessState:
         """Steps 1-3 of the module docstring: the new ActiveState of ``d`` for input ``x``."""

@@ -359,3 +359,11 @@ def test_a_primed_boolean_is_replaced_by_the_first_input_without_an_event() -> N
     assert m.booleans() == {"b.PvBad": False}
     m.prime("LIC1PvBad", True)
     assert reasons(m.scan({"LIC1PvBad": AlarmInput(True)}, 1.0)) == ["active"]
+
+
+def test_the_rate_memory_stays_bounded_without_summaries() -> None:
+    m = manager(PVBAD)
+    for k in range(2000):  # one activation every 20 s for 11 h, nobody asks for the summary
+        m.scan({"LIC1PvBad": AlarmInput(k % 2 == 0)}, 10.0 * k)
+    assert len(m._annunciated) <= 600 / 20 + 1
+    assert m.summary(19990.0).rate_per_10min == 30
