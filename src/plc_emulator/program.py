@@ -32,7 +32,9 @@ A scan (period Ts of model time) does, in order:
    bumplessly after the reset and no pump restarts by itself at an old manual value.
 6. **Write outputs**: one command per pump, in the pump's own unit, always inside the pump's
    command range.
-7. **Report**: the program's state as a value (``status()``: a
+7. **Alarms**: the alarm manager (``plc_emulator.alarms``, docs/alarms.md) takes the scan's
+   state; its events are kept for the OPC UA projection, its booleans are ``PLC.Alarms.*``.
+8. **Report**: the program's state as a value (``status()``: a
    :class:`plc_emulator.status.PlcStatus`), which the OPC UA side maps to the contract's nodes
    (:func:`plc_emulator.publish.status_values`); the program knows no node path.
 
@@ -64,6 +66,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from plc_emulator import retain
+from plc_emulator.alarms import PlcAlarms
 from plc_emulator.interlocks import Interlock, latch, reset_trips
 from plc_emulator.loops import ERROR_SCALE, Group, Loop, build_groups, group_gains, make_loops
 from plc_emulator.pid import Pid
@@ -134,6 +137,7 @@ class PlcProgram:
     site : a site config with a ``plc`` section.
     watchdog_timeout_s : heartbeat timeout in model time; default: the config's (the runtime
         raises it to a wall-clock floor at high speed).
+    alarm_event_prefix : the alarms' EventId prefix, unique per process (the runtime's).
 
     Raises
     ------
@@ -142,7 +146,9 @@ class PlcProgram:
         coupled by cross gains disagree on ``pv_bad_scans`` or ``derivative_filter_s``.
     """
 
-    def __init__(self, site: SiteConfig, *, watchdog_timeout_s: float | None = None) -> None:
+    def __init__(
+        self, site: SiteConfig, *, watchdog_timeout_s: float | None = None, alarm_event_prefix: bytes = b""
+    ) -> None:
         if site.plc is None:
             raise ValueError(f"site {site.name!r} has no plc section")
         self.site = site
@@ -207,6 +213,7 @@ class PlcProgram:
         self._loop_consts: list[tuple[Loop, str, float, float]] = [
             (lp, lp.spec.name, lp.spec.sp_min_m, lp.spec.sp_max_m) for lp in self.loops
         ]
+        self.alarms = PlcAlarms(site, event_prefix=alarm_event_prefix)
 
     # ---- state after the last scan (arrays built on request) -----------------------------
 
@@ -421,8 +428,9 @@ class PlcProgram:
         Per loop: SP, the engineer's SP limits, mode, manual MV, the applied gains and their source
         (ENGINEER included: an engineer's hold survives a restart) and the last MV (the fallback
         start value when the plant cannot be read at start). Latched interlocks (a trip survives
-        a restart until an operator resets it), the scan counter (scans run so far) and the model
-        time at the start of the last scan [s].
+        a restart until an operator resets it), the scan counter (scans run so far), the model
+        time at the start of the last scan [s] and the alarms' state (enabled, active, acked,
+        confirmed, comment, shelving: ``AlarmManager.to_retain``).
         """
         return retain.retained(self)
 
@@ -481,8 +489,11 @@ class PlcProgram:
             shell.set_remote_mv(lp.slot, mv)
 
     def reset_interlocks(self) -> list[str]:
-        """Reset latched trips whose (good) level is below the reset level; return the tanks reset."""
-        return reset_trips(self.interlocks, self._levels_m, self._good)
+        """Reset latched trips whose (good) level is below the reset level; return the tanks reset
+        (their trip alarms reset at the next scan)."""
+        reset = reset_trips(self.interlocks, self._levels_m, self._good)
+        self.alarms.interlocks_reset(reset)
+        return reset
 
     # ---- the scan -----------------------------------------------------------------------
 
@@ -512,6 +523,7 @@ class PlcProgram:
         self._read_inputs(levels.tolist(), delivered.tolist(), bool(inputs.io_healthy))
         self._execute_blocks()
         self._write_outputs(self._apply_interlocks())
+        self.alarms.scan(self)
         self.scan_count += 1
         return ScanOutputs(
             commands=np.array(self._commands, dtype=float), status=self.status() if publish else None
@@ -699,6 +711,7 @@ class PlcProgram:
                 tuple(loops),
                 tuple(tanks),
                 tuple(trips),
+                self.alarms.flags(),
             ),
         )
 

@@ -37,11 +37,14 @@ def status_values(status: PlcStatus) -> dict[str, Any]:
 
     Every variable of :func:`tanklab.tags.plc_tags` except :data:`RUNTIME_OWNED_TAGS`,
     ``PLC.LIC*.Block`` and ``PLC.Identity.*``, each once. Enumerations are published as their
-    ints, a block without PID gains as Kp = Ki = Kd = 0, ``PLC.Alarms.IoFault`` as not
-    ``io_healthy``.
+    ints, a block without PID gains as Kp = Ki = Kd = 0.
+
+    The ``PLC.Alarms.*`` booleans are the alarm manager's (``status.alarms``): each follows its
+    alarm's ActiveState, after deadband and delays (docs/alarms.md).
     """
     v: dict[str, Any] = {}
-    for lp in status.loops:
+    alarms = status.alarms
+    for lp, alarm_pv_bad in zip(status.loops, alarms.pv_bad, strict=True):
         sp, sp_low, sp_high, pv, mv, mode, manual, remote, kp, ki, kd, source, pv_bad = _loop_paths(lp.name)
         v[sp] = lp.sp_m
         v[sp_low] = lp.sp_low_m
@@ -57,21 +60,21 @@ def status_values(status: PlcStatus) -> dict[str, Any]:
         else:
             v[kp], v[ki], v[kd] = g.kp, g.ki, g.kd
         v[source] = int(lp.gain_source)
-        v[pv_bad] = lp.pv_bad
+        v[pv_bad] = alarm_pv_bad
     plc = paths.plc
     v[plc.scan] = status.scan
     v[plc.io_healthy] = status.io_healthy
     v[plc.model_time] = status.t_s
     v[plc.supervisor_alive] = status.supervisor_alive
-    v[plc.io_fault] = not status.io_healthy
-    v[plc.supervisor_lost] = status.supervisor_lost
-    for tank in status.tanks:
+    v[plc.io_fault] = alarms.io_fault
+    v[plc.supervisor_lost] = alarms.supervisor_lost
+    for tank, (a_high, a_low, a_high_high) in zip(status.tanks, alarms.levels, strict=True):
         pv, good, high, low, high_high = _tank_paths(tank.name)
         v[pv] = tank.pv_m
         v[good] = tank.good
-        v[high] = tank.high
-        v[low] = tank.low
-        v[high_high] = tank.high_high
+        v[high] = a_high
+        v[low] = a_low
+        v[high_high] = a_high_high
     for il in status.interlocks:
         v[plc.interlock(il.tank)] = il.tripped
     return v

@@ -46,6 +46,7 @@ def retained(program: PlcProgram) -> dict[str, Any]:
         "t_s": program.t_s,
         "loops": loops,
         "tripped": [il.tank_name for il in program.interlocks if il.tripped],
+        "alarms": program.alarms.manager.to_retain(),
     }
 
 
@@ -97,6 +98,12 @@ def restore_retained(program: PlcProgram, data: Mapping[str, Any]) -> list[str]:
     tripped = set(data.get("tripped", []))
     for il in program.interlocks:
         il.tripped = il.tank_name in tripped
+    if "alarms" in data:  # absent in files of earlier versions
+        alarms = data["alarms"]
+        if isinstance(alarms, Mapping):
+            skipped += program.alarms.manager.from_retain(alarms)
+        else:
+            skipped.append("alarms: not a mapping")
     return skipped
 
 

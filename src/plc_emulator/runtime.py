@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -216,7 +217,11 @@ async def run_plc(
     stats = stats or PlcRunStats()
     ts = site.plc.scan_period_s
     timeout = site.plc.watchdog.timeout_s
-    program = PlcProgram(site, watchdog_timeout_s=timeout if lockstep else max(timeout, WALL_FLOOR_S * speed))
+    program = PlcProgram(
+        site,
+        watchdog_timeout_s=timeout if lockstep else max(timeout, WALL_FLOOR_S * speed),
+        alarm_event_prefix=os.urandom(8),  # EventIds unique across restarts of the process
+    )
     server = PlcServer(site, program, host, port, security)
     ack = asyncio.Event()
     seen = asyncio.Event()  # the supervisor has written a heartbeat at least once

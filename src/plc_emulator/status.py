@@ -88,6 +88,24 @@ class InterlockStatus(NamedTuple):
     tripped: bool
 
 
+class AlarmFlags(NamedTuple):
+    """The ``PLC.Alarms.*`` booleans as the alarm manager has them (each follows its alarm's
+    ActiveState after deadband, delays and latching: docs/alarms.md), not the raw comparisons of
+    :class:`TankStatus` and :class:`LoopStatus`.
+
+    Attributes
+    ----------
+    levels : per tank, in plant order, its (high, low, high_high) level-alarm flags.
+    pv_bad : per loop, in config order, its PvBad alarm.
+    io_fault, supervisor_lost : the PLC's IoFault and SupervisorLost alarms.
+    """
+
+    levels: tuple[tuple[bool, bool, bool], ...]
+    pv_bad: tuple[bool, ...]
+    io_fault: bool
+    supervisor_lost: bool
+
+
 class PlcStatus(NamedTuple):
     """The PLC program's state after a scan (or before the first: the initial state).
 
@@ -101,6 +119,7 @@ class PlcStatus(NamedTuple):
     loops : per loop, in config order.
     tanks : per tank, in plant order.
     interlocks : per configured interlock, in config order.
+    alarms : the alarm booleans (the alarm manager's).
     """
 
     scan: int
@@ -111,3 +130,4 @@ class PlcStatus(NamedTuple):
     loops: tuple[LoopStatus, ...]
     tanks: tuple[TankStatus, ...]
     interlocks: tuple[InterlockStatus, ...]
+    alarms: AlarmFlags

@@ -183,6 +183,7 @@ class LoopPaths:
         "release_gains",
         "remote_mv",
         "reset_gains",
+        "root",
         "set_gains",
         "sp",
         "sp_high",
@@ -192,6 +193,8 @@ class LoopPaths:
     def __init__(self, name: str) -> None:
         root = f"PLC.{name}"
         self.name = name
+        self.root = root
+        """The loop's object (the source node of its alarms)."""
         self.sp = f"{root}.SP"
         """Setpoint [m] (operator)."""
         self.pv = f"{root}.PV"
@@ -219,10 +222,12 @@ class LoopPaths:
 class IoPaths:
     """A level as the PLC read it (``PLC.IO.LT1.*``): value [m] and the PLC's quality."""
 
-    __slots__ = ("good", "pv")
+    __slots__ = ("good", "pv", "root")
 
     def __init__(self, tank: str) -> None:
         root = f"PLC.IO.LT{tank[1:]}"
+        self.root = root
+        """The reading's object (the source node of the tank's level alarm)."""
         self.pv = f"{root}.PV"
         self.good = f"{root}.Good"
 
@@ -243,6 +248,12 @@ class PlcPaths:
     supervisor_timeout = "PLC.Supervisor.Timeout"
     supervisor_alive = "PLC.Supervisor.Alive"
     interlock_reset = "PLC.Interlock.Reset"
+    status = "PLC.Status"
+    """The status object (the source node of the IoFault alarm)."""
+    supervisor = "PLC.Supervisor"
+    """The supervisor link's object (the source node of the SupervisorLost alarm)."""
+    interlocks = "PLC.Interlock"
+    """The interlocks' object (the source node of the trip alarms)."""
     io_fault = "PLC.Alarms.IoFault"
     supervisor_lost = "PLC.Alarms.SupervisorLost"
     alarms_prefix = "PLC.Alarms."

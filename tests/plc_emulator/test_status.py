@@ -43,7 +43,10 @@ PY_TYPE = {DataType.DOUBLE: float, DataType.INT32: int, DataType.UINT32: int, Da
 
 
 def old_values(program: PlcProgram) -> dict[str, Any]:
-    """The oracle: ``PlcProgram.values()`` as it was before the typed status (commit 3d27bfc)."""
+    """The oracle: ``PlcProgram.values()`` as it was before the typed status (commit 3d27bfc),
+    with the ``PLC.Alarms.*`` booleans the alarm manager's (as the alarm core made them: with no
+    deadband and no delays they are the old comparisons, which test_alarm_booleans.py checks)."""
+    alarms = program.alarms.booleans()
     v: dict[str, Any] = {}
     for lp in program.loops:
         n = paths.plc.loop(lp.spec.name)
@@ -59,22 +62,20 @@ def old_values(program: PlcProgram) -> dict[str, Any]:
         v[n.ki] = float(g.ki) if g else 0.0
         v[n.kd] = float(g.kd) if g else 0.0
         v[n.gain_source] = int(lp.source)
-        v[paths.plc.pv_bad_alarm(lp.spec.name)] = bool(lp.pv_bad)
+        v[paths.plc.pv_bad_alarm(lp.spec.name)] = alarms[paths.plc.pv_bad_alarm(lp.spec.name)]
     v[paths.plc.scan] = int(program.scan_count)
     v[paths.plc.io_healthy] = bool(program.io_healthy)
     v[paths.plc.model_time] = float(program.t_s)
     v[paths.plc.supervisor_alive] = bool(program.watchdog.alive)
-    v[paths.plc.io_fault] = not program.io_healthy
-    v[paths.plc.supervisor_lost] = bool(program.watchdog.ever_alive and not program.watchdog.alive)
+    v[paths.plc.io_fault] = alarms[paths.plc.io_fault]
+    v[paths.plc.supervisor_lost] = alarms[paths.plc.supervisor_lost]
     for i, name in enumerate(program.site.tank_names):
-        level = program._levels_m[i]
         ok = program._good[i]
         io = paths.plc.io(name)
         v[io.pv] = program._last_good_m[i]
         v[io.good] = ok
-        v[paths.plc.alarm(name, "H")] = bool(ok and level >= program.high_m[i])
-        v[paths.plc.alarm(name, "L")] = bool(ok and level <= program.low_m[i])
-        v[paths.plc.alarm(name, "HH")] = bool(program._raw_m[i] >= program.hh_m[i])
+        for kind in ("H", "L", "HH"):
+            v[paths.plc.alarm(name, kind)] = alarms[paths.plc.alarm(name, kind)]
     for il in program.interlocks:
         v[paths.plc.interlock(il.tank_name)] = bool(il.tripped)
     return v

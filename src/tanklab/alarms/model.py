@@ -119,6 +119,10 @@ class AlarmDefinition:
         suppressed (SuppressedState true; no annunciation), or None.
     boolean_path : the ``PLC.Alarms.*`` boolean that follows ActiveState (kept by the contract),
         or None.
+    limit_boolean_paths : level alarms only: the ``PLC.Alarms.*`` booleans of the limits, in the
+        order of ``limits_m``, each None when there is none (``T1HH``, ``T1H``, ``T1L``, None). Each
+        is its limit's own comparison (with deadband) as the ActiveState was evaluated: High and
+        Low only with a good reading, HighHigh on any finite one (today's meaning).
     """
 
     name: str
@@ -136,6 +140,7 @@ class AlarmDefinition:
     confirm: bool = False
     suppress_when_manual: str | None = None
     boolean_path: str | None = None
+    limit_boolean_paths: tuple[str | None, str | None, str | None, str | None] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -179,6 +179,56 @@ class PlcWatchdog(Model):
     )
 
 
+PriorityName = Literal["LOW", "MEDIUM", "HIGH", "URGENT"]
+"""ISA-18.2 priorities (Severity 250, 500, 700, 900; docs/alarms.md)."""
+LimitName = Literal["HighHigh", "High", "Low", "LowLow"]
+
+
+class AlarmOverride(Model):
+    """Overrides of one alarm's defaults (docs/alarms.md lists the alarms and their defaults)."""
+
+    priority: PriorityName | None = Field(
+        None,
+        description="Priority of the alarm (of every limit of a level alarm not in limit_priorities); "
+        "null = the default.",
+    )
+    limit_priorities: dict[LimitName, PriorityName] = Field(
+        default_factory=dict,
+        description="Level alarms: the priority per limit (HighHigh, High, Low, LowLow).",
+    )
+    deadband_m: NonNegFloat | None = Field(
+        None,
+        description="Level alarms: return-to-normal deadband [m]; null = 2 % of the transmitter range "
+        "(EEMUA 191).",
+    )
+    on_delay_s: NonNegFloat = Field(
+        0.0, description="Model time the condition must hold before the alarm activates [s]."
+    )
+    off_delay_s: NonNegFloat = Field(
+        0.0, description="Model time the condition must be gone before the alarm returns to normal [s]."
+    )
+    suppress_when_manual: bool = Field(
+        False,
+        description="Level and PvBad alarms: suppressed while the tank's loop is in MANUAL (out of service).",
+    )
+    low_low_m: NonNegFloat | None = Field(
+        None, description="Level alarms: the LowLow limit [m], below the tank's low switch; null = none."
+    )
+
+
+class AlarmsConfig(Model):
+    """Alarm management of the PLC's conditions (OPC UA Part 9, ISA-18.2)."""
+
+    max_shelving_time_s: PositiveFloat = Field(
+        8 * 3600.0, description="Longest shelving allowed, timed or one-shot, in model time [s]."
+    )
+    overrides: dict[str, AlarmOverride] = Field(
+        default_factory=dict,
+        description="Per-alarm overrides keyed by alarm name (T1Level, LIC1PvBad, IoFault, SupervisorLost, "
+        "T1Trip).",
+    )
+
+
 class PlcConfig(Model):
     """The soft PLC program: loops, interlocks, watchdog, scan period."""
 
@@ -188,6 +238,9 @@ class PlcConfig(Model):
     watchdog: PlcWatchdog = Field(default_factory=PlcWatchdog, description="Supervisor watchdog.")
     pv_frozen_scans: int = Field(
         0, ge=0, description="Identical PV readings in a row that mark a PV frozen (bad); 0 = off."
+    )
+    alarms: AlarmsConfig = Field(
+        default_factory=AlarmsConfig, description="Alarm management: per-alarm overrides, shelving."
     )
     retain_file: str | None = Field(
         None,

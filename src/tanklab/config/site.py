@@ -6,6 +6,7 @@ from typing import Self
 
 from pydantic import Field, model_validator
 
+from tanklab.alarms import names as alarm_names
 from tanklab.config.base import Model
 from tanklab.config.plant import PlantConfig
 from tanklab.config.plc import InterlockSpec, PlcConfig
@@ -74,6 +75,7 @@ class SiteConfig(Model):
                 if il.tank not in tanks:
                     raise ValueError(f"plc.interlocks: unknown tank {il.tank}")
                 self._check_interlock(il)
+            self._check_alarms()
         if self.supervisor is not None:
             if self.plc is None:
                 raise ValueError("supervisor needs a plc section")
@@ -120,6 +122,40 @@ class SiteConfig(Model):
                 f"({rise_m:.3g} m) reaches height_max_m {tank.height_max_m:g} m: the trip could not stop "
                 "an overflow (lower the trip, the pump's max_flow_m3_s or the scan period)"
             )
+
+    def _check_alarms(self) -> None:
+        """Each override names an alarm of this site and sets only what that alarm has."""
+        assert self.plc is not None
+        plc = self.plc
+        levels = {alarm_names.level(t.name): t for t in self.plant.tanks}
+        pv_bad = {alarm_names.pv_bad(lp.name) for lp in plc.loops}
+        known = [*levels, *sorted(pv_bad), alarm_names.IO_FAULT, alarm_names.SUPERVISOR_LOST]
+        known += sorted({alarm_names.trip(il.tank) for il in plc.interlocks})
+        for name, o in plc.alarms.overrides.items():
+            where = f"plc.alarms.overrides.{name}"
+            if name not in known:
+                raise ValueError(f"{where}: unknown alarm (this site's: {', '.join(known)})")
+            tank = levels.get(name)
+            if tank is None:
+                level_only = ("limit_priorities", "deadband_m", "low_low_m")
+                set_here = [f for f in level_only if getattr(o, f) not in (None, {})]
+                if set_here:
+                    raise ValueError(f"{where}: {', '.join(set_here)} apply to level alarms only")
+                if o.suppress_when_manual and name not in pv_bad:
+                    raise ValueError(f"{where}: suppress_when_manual applies to level and PvBad alarms only")
+                continue
+            low_m, high_m = tank.switch_levels().low_m, tank.switch_levels().high_m
+            if o.low_low_m is not None and o.low_low_m >= low_m:
+                raise ValueError(
+                    f"{where}: low_low_m {o.low_low_m:g} m must be below the low switch {low_m:g} m"
+                )
+            if o.deadband_m is not None and o.deadband_m >= high_m - low_m:
+                raise ValueError(
+                    f"{where}: deadband_m {o.deadband_m:g} m must be below the band between the "
+                    f"switches ({high_m - low_m:g} m)"
+                )
+            if o.suppress_when_manual and not any(lp.pv == "LT" + tank.name[1:] for lp in plc.loops):
+                raise ValueError(f"{where}: suppress_when_manual needs a loop on {tank.name}'s transmitter")
 
     # Convenience views used by tags and runtimes --------------------------------------------
 
