@@ -113,6 +113,8 @@ class TierClient:
             timeout_s=self.timeout_s,
             client_name="tankctl",
         )
+        self._wanted: list[str] = []
+        self._first: dict[str, Any] = {}
 
     @property
     def tags(self) -> dict[str, Tag]:
@@ -130,9 +132,17 @@ class TierClient:
             raise UnreachableError(self.tier, self.url, "not connected")
         return self.link.client
 
+    def will_read(self, paths: Sequence[str]) -> TierClient:
+        """Read ``paths`` together with the site identity when this client connects: one Read
+        instead of two. The values are the tier's only once its identity is accepted, and the
+        next :meth:`read` of exactly those paths gets them (once; later reads ask the tier)."""
+        self._wanted = list(paths)
+        return self
+
     async def connect(self) -> TierClient:
         """Connect, look the namespace index up and check the tier's site identity with
-        :meth:`Stack.accept` (each within the timeout); a no-op when connected."""
+        :meth:`Stack.accept` (each within the timeout); a no-op when connected. The identity
+        and the paths of :meth:`will_read` are read in one Read."""
         if self.link.healthy:
             return self
         try:
@@ -142,12 +152,15 @@ class TierClient:
         paths = identity_paths(self.tier)
         if self.stack.resolved:  # the Config text is only needed to learn the site
             del paths["Config"]
+        identity = list(paths.values())
+        wanted = [p for p in self._wanted if p not in identity]
         try:
-            values = await self.read(list(paths.values()))
+            values = await self._read(identity + wanted)
             self.stack.accept(self.tier, self.url, {item: values[p] for item, p in paths.items()})
         except TanklabError:
             await self.close()
             raise
+        self._first = {p: values[p] for p in self._wanted}
         return self
 
     def _connect_failure(self, stage: str, cause: BaseException) -> Exception:
@@ -170,6 +183,7 @@ class TierClient:
 
     async def close(self) -> None:
         """Disconnect (idempotent, never raises)."""
+        self._first = {}
         await self.link.close()
 
     async def __aenter__(self) -> TierClient:
@@ -204,7 +218,14 @@ class TierClient:
             raise UnreachableError(self.tier, self.url, "not connected") from None
 
     async def read(self, paths: Sequence[str]) -> dict[str, Any]:
-        """Values of ``paths`` in one Read; a node answering a Bad status reads as None."""
+        """Values of ``paths`` in one Read; a node answering a Bad status reads as None. The
+        paths of :meth:`will_read`, read at connect, are not read again the first time."""
+        if self._first and list(paths) == list(self._first):
+            first, self._first = self._first, {}
+            return first
+        return await self._read(paths)
+
+    async def _read(self, paths: Sequence[str]) -> dict[str, Any]:
         if not paths:
             return {}
         dvs = await self._linked(self.link.read(paths))
