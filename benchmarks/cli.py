@@ -10,10 +10,12 @@ Two measurements:
   and encrypt), the login, one Read (and one Write), the close. Every run must exit 0. The
   setpoint written is the config's own (``setpoint_m``), so the stack's state does not change.
 - **import time** of the CLI (``python -X importtime``): ``import tankctl.cli`` is what every
-  command pays before it parses its arguments; its top entries by cumulative time show what
-  that cost is made of, and ``import tankctl.simulate`` (the co-simulation, which the CLI
-  imports only inside ``simulate`` and ``compare``) what it no longer contains
-  (docs/decisions/0023-lazy-cli-imports.md).
+  command pays before it parses its arguments; a command's own module is imported when the
+  command is used (decision 0037), so ``tankctl.ops.writes`` and ``tankctl.ops.status`` are what
+  ``setpoint`` and ``status`` add, and the top entries of ``tankctl.ops.writes`` by cumulative
+  time show what an operator command's imports are made of. ``import tankctl.simulate`` (the
+  co-simulation, which the CLI imports only inside ``simulate`` and ``compare``) shows what
+  they no longer contain (docs/decisions/0023-lazy-cli-imports.md).
 
 The other-load column is :class:`benchmarks.procs.CpuMeter`'s, with the CLI processes' own CPU
 time (reaped children of this process, ``os.times``) counted as ours.
@@ -54,6 +56,11 @@ COMMAND_TIMEOUT_S = 60.0
 """Bound on one operator command [s] (a hung command is an error, not a sample)."""
 HEAVY = ("scipy.signal", "scipy.stats", "matplotlib", "osqp", "tankctl.cosim", "supervisor.mpc")
 """Modules the operator path must not import (tests/tankctl/test_cli_imports.py guards them)."""
+
+OPERATOR_MODULES = ("tankctl.ops.writes", "tankctl.ops.status")
+"""What ``tankctl setpoint`` and ``tankctl status`` import when they run (decision 0037)."""
+TOP_MODULE = "tankctl.ops.writes"
+"""The import whose top entries the section lists: ``setpoint``'s, an operator command's."""
 
 _IMPORT_LINE = re.compile(r"^import time:\s+(\d+)\s+\|\s+(\d+)\s+\|(\s*)(\S+)\s*$")
 
@@ -269,7 +276,7 @@ def run(log_dir: Path, repeats: int, log: Callable[[str], None]) -> CliResults:
     one, five, _ = os.getloadavg()
     out.load_average = f"{one:.2f} / {five:.2f}"
     out.speed_reference_ms = speed_reference()
-    for module in ("tankctl.cli", "tankctl.simulate"):
+    for module in ("tankctl.cli", *OPERATOR_MODULES, "tankctl.simulate"):
         prof = import_profile(module)
         out.imports.append(prof)
         log(f"  import {module}: {fmt(prof.total_us / 1e3)} ms (heavy: {', '.join(prof.heavy) or 'none'})")
@@ -335,11 +342,11 @@ def markdown(res: CliResults, top: int = 12) -> str:
     lines += [
         "",
         "Import cost (`python -X importtime -c 'import MODULE'`, the fastest of 3 fresh processes): "
-        "`import tankctl.cli` is what every command pays before it parses its arguments; the "
-        "co-simulation (`tankctl.simulate`) is imported only by `simulate` and `compare` "
-        "(docs/decisions/0023-lazy-cli-imports.md). Heavy modules checked: "
-        + ", ".join(f"`{h}`" for h in HEAVY)
-        + ".",
+        "`import tankctl.cli` is what every command pays before it parses its arguments; a "
+        "command's own module is imported when it is used (decision 0037): `tankctl.ops.writes` "
+        "for `setpoint`, `tankctl.ops.status` for `status`. The co-simulation (`tankctl.simulate`) "
+        "is imported only by `simulate` and `compare` (docs/decisions/0023-lazy-cli-imports.md). "
+        "Heavy modules checked: " + ", ".join(f"`{h}`" for h in HEAVY) + ".",
         "",
         "| import | total [ms] | heavy modules loaded |",
         "| --- | ---: | --- |",
@@ -347,12 +354,12 @@ def markdown(res: CliResults, top: int = 12) -> str:
     for prof in res.imports:
         heavy = ", ".join(f"`{h}`" for h in prof.heavy) or "none"
         lines.append(f"| `{prof.module}` | {fmt(prof.total_us / 1e3)} | {heavy} |")
-    cli = next((p for p in res.imports if p.module == "tankctl.cli"), None)
+    cli = next((p for p in res.imports if p.module == TOP_MODULE), None)
     if cli is not None:
         lines += [
             "",
-            f"Top {top} entries of `import tankctl.cli` by cumulative time (nested entries are "
-            "part of their parents' time):",
+            f"Top {top} entries of `import {TOP_MODULE}` (`tankctl setpoint`'s imports) by "
+            "cumulative time (nested entries are part of their parents' time):",
             "",
             "| module | cumulative [ms] | self [ms] |",
             "| --- | ---: | ---: |",

@@ -16,20 +16,52 @@ import signal
 import socket
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 import typer
 
-from tankctl import ops
-from tankctl.security_cli import register as register_security
-from tankctl.simulate_cli import register as register_simulate
-from tankctl.tune_cli import app as tune_app
-from tanklab.config import SiteConfig, load_site, site_schema
+from tankctl.lazy import Lazy, LazyGroup
+from tankctl.ops import COMMANDS as OPERATOR_COMMANDS
 from tanklab.errors import TanklabError
-from tanklab.tags import render_markdown
 
 if TYPE_CHECKING:
+    from tanklab.config import SiteConfig
     from tanklab_io.ua_security import ServerSecurity
+
+
+class TankctlGroup(LazyGroup):
+    """The ``tankctl`` group: the commands defined in other modules are imported when used
+    (:mod:`tankctl.lazy`, decision 0037); ``order`` is the order ``--help`` lists them in."""
+
+    lazy: ClassVar[dict[str, Lazy]] = {
+        **{
+            name: Lazy(f"tankctl.ops.{module}", func, one_line_usage=True)
+            for name, (module, func) in OPERATOR_COMMANDS.items()
+        },
+        "simulate": Lazy("tankctl.simulate_cli", "simulate_command"),
+        "compare": Lazy("tankctl.simulate_cli", "compare_command"),
+        "tune": Lazy("tankctl.tune_cli", "app", group=True),
+        "scenario": Lazy("tankctl.ops.scenario", "scenario_app", group=True),
+        "pki": Lazy("tankctl.security_cli", "pki_app", group=True),
+        "user": Lazy("tankctl.security_cli", "user_app", group=True),
+    }
+    order: ClassVar[tuple[str, ...]] = (
+        *OPERATOR_COMMANDS,
+        "simulate",
+        "compare",
+        "linearize",
+        "plant",
+        "plc",
+        "supervisor",
+        "up",
+        "config",
+        "tune",
+        "scenario",
+        "pki",
+        "user",
+        "docs",
+    )
+
 
 app = typer.Typer(
     name="tankctl",
@@ -37,14 +69,11 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    cls=TankctlGroup,
 )
 config_app = typer.Typer(help="Validate site configs and print their schema.", no_args_is_help=True)
 docs_app = typer.Typer(help="Generate documentation from the code.", no_args_is_help=True)
 app.add_typer(config_app, name="config")
-app.add_typer(tune_app, name="tune")
-ops.register(app)
-register_simulate(app)
-register_security(app)
 app.add_typer(docs_app, name="docs")
 
 ConfigOpt = Annotated[
@@ -112,6 +141,8 @@ def resolve_speed(speed: float | None) -> float:
 def load(path: Path) -> SiteConfig:
     """Load a site config with environment endpoint overrides; errors become one line."""
     try:
+        from tanklab.config import load_site
+
         return load_site(path, env=os.environ)
     except TanklabError as e:
         raise fail(str(e)) from None
@@ -162,12 +193,16 @@ def config_check(file: Annotated[Path, typer.Argument(help="Site YAML file to va
 @config_app.command("schema")
 def config_schema() -> None:
     """Print the JSON schema of a site config file."""
+    from tanklab.config import site_schema
+
     typer.echo(json.dumps(site_schema(), indent=2, sort_keys=True))
 
 
 @docs_app.command("address-space")
 def docs_address_space(config: ConfigOpt = None) -> None:
     """Print docs/address-space.md (the contract's node table for the site)."""
+    from tanklab.tags import render_markdown
+
     typer.echo(render_markdown(load(resolve_config(config))), nl=False)
     typer.echo("")
 

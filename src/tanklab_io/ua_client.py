@@ -30,6 +30,14 @@ from tanklab_io.ua import variant
 log = logging.getLogger(__name__)
 
 
+NAMESPACE_ARRAY = ua.NodeId(ua.ObjectIds.Server_NamespaceArray)
+"""The server's NamespaceArray (namespace URIs by index)."""
+
+TANKLAB_INDEX = 2
+"""Where every tanklab tier has ``urn:tanklab``: after OPC UA's own namespace and the server's
+application URI (``register_namespace`` when its nodes are built)."""
+
+
 async def namespace_index(client: Client) -> int:
     """Index of ``urn:tanklab`` on the server the client is connected to."""
     return int(await client.get_namespace_index(NAMESPACE_URI))
@@ -200,8 +208,13 @@ class Link:
         backoff: Callable[[int, random.Random], float] = backoff_delay,
         failure_level: int = logging.INFO,
         client_name: str | None = None,
+        namespace_index: int | None = None,
     ) -> None:
         self.url = url
+        self.assumed_idx = namespace_index
+        """The index of ``urn:tanklab`` to take at connect instead of looking it up (a Read of
+        the server's NamespaceArray), for an owner that checks it in its own first Read
+        (:meth:`read_nodes` with :data:`NAMESPACE_ARRAY`); None: looked up."""
         self.client_name = client_name
         """The client's application name shown to the server (None: asyncua's default)."""
         self.setup = setup
@@ -262,7 +275,10 @@ class Link:
             stage = "connect"
             await asyncio.wait_for(client.connect(), self.timeout_s)
             stage = "namespace"
-            self.idx = await asyncio.wait_for(namespace_index(client), self.timeout_s)
+            if self.assumed_idx is None:
+                self.idx = await asyncio.wait_for(namespace_index(client), self.timeout_s)
+            else:
+                self.idx = self.assumed_idx
         except Exception as e:
             # asyncua unwinds a failed connect itself; what a timeout cut short is the socket.
             # (A full disconnect of a client that never connected logs its own warning.)
@@ -329,10 +345,16 @@ class Link:
         """Read the values of ``paths`` in one Read; DataValues with their status codes."""
         if not self.healthy or self.client is None:
             raise LinkError(f"{self.name} link to {self.url} is down")
+        return await self.read_nodes([self.node(p) for p in paths])
+
+    async def read_nodes(self, nodes: Sequence[Node]) -> list[ua.DataValue]:
+        """Read the values of any ``nodes`` (of this link's client) in one Read, as :meth:`read`."""
+        if not self.healthy or self.client is None:
+            raise LinkError(f"{self.name} link to {self.url} is down")
         try:
             # asyncio.timeout, not wait_for: no extra task per request (a few us, every scan).
             async with asyncio.timeout(self.timeout_s):
-                return list(await self.client.read_attributes([self.node(p) for p in paths]))
+                return list(await self.client.read_attributes(list(nodes)))
         except Exception as e:
             raise await self._fail("read", e) from e
 

@@ -43,6 +43,7 @@ import asyncio
 import hmac
 import logging
 import os
+import socket
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -54,13 +55,19 @@ from asyncua import Client, Server, ua
 from asyncua.common.utils import Buffer, ServiceError
 from asyncua.crypto import uacrypto
 from asyncua.crypto.permission_rules import User
-from asyncua.crypto.security_policies import SecurityPolicyAes128Sha256RsaOaep, SecurityPolicyBasic256Sha256
+from asyncua.crypto.security_policies import (
+    SecurityPolicy,
+    SecurityPolicyAes128Sha256RsaOaep,
+    SecurityPolicyBasic256Sha256,
+    SecurityPolicyNone,
+)
 from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 from asyncua.server.binary_server_asyncio import BinaryServer, OPCUAProtocol
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 from cryptography import x509
+from cryptography.hazmat.primitives import serialization
 
 from tanklab.errors import SecurityError
 from tanklab.handlers import check_handlers
@@ -596,7 +603,10 @@ class ClientIdentity:
 async def secure_client(client: Client, identity: ClientIdentity) -> None:
     """Set up ``client`` (not yet connected) to connect as ``identity``.
 
-    Fetches the server's endpoints over the discovery channel (the one thing it serves).
+    Fetches the server's endpoints over the discovery channel (the one thing it serves). The
+    identity's certificate and private key are read and checked once per process while their
+    files stay unchanged (:func:`identity_material`): the key's validation is the costliest
+    step of a connection, and ``tankctl status`` connects to three tiers.
     """
     pki = identity.home.pki
     cert, key = pki.cert_path(identity.name), pki.key_path(identity.name)
@@ -611,15 +621,69 @@ async def secure_client(client: Client, identity: ClientIdentity) -> None:
         raise SecurityError(f"no credentials: set TANKLAB_USER and TANKLAB_PASSWORD, or write {where}")
     client.application_uri = APPLICATION_URIS.get(identity.name, f"urn:tanklab:{identity.name}")
     client.certificate_validator = ReloadingValidator(pki)
-    await client.set_security(
-        CLIENT_POLICIES[identity.policy], str(cert), str(key), mode=ua.MessageSecurityMode.SignAndEncrypt
-    )
+    certificate, private_key = identity_material(cert, key)
+    await _set_security(client, CLIENT_POLICIES[identity.policy], certificate, private_key)
     if identity.credentials is not None:
         client.set_user(identity.credentials.username)
         client.set_password(identity.credentials.password)
     else:
-        client.user_certificate = await uacrypto.load_certificate(str(cert))
-        client.user_private_key = await uacrypto.load_private_key(str(key))
+        client.user_certificate = certificate
+        client.user_private_key = private_key
+
+
+_MATERIAL: dict[tuple[Path, Path], tuple[tuple[int, ...], x509.Certificate, Any]] = {}
+"""What :func:`identity_material` read, by file pair, with the files' stamps (this process only)."""
+
+
+def _stamp(*paths: Path) -> tuple[int, ...]:
+    out: list[int] = []
+    for path in paths:
+        st = path.stat()
+        out += [st.st_ino, st.st_size, st.st_mtime_ns]
+    return tuple(out)
+
+
+def identity_material(cert_path: Path, key_path: Path) -> tuple[x509.Certificate, Any]:
+    """The certificate and private key of an identity, read and checked once (each as PEM if
+    its file name ends in ``.pem``, else DER, as asyncua decides).
+
+    Kept in memory for this process only, and read again as soon as either file changes (a
+    re-issued certificate, a new key): its inode, size or modification time. Nothing is written
+    anywhere. The key is loaded with cryptography's full RSA key validation (about 20-40 ms of
+    CPU on the reference machines), which is why it is worth not repeating per connection.
+    """
+    stamp = _stamp(cert_path, key_path)
+    kept = _MATERIAL.get((cert_path, key_path))
+    if kept is not None and kept[0] == stamp:
+        return kept[1], kept[2]
+    pem = (cert_path.suffix.lower() == ".pem", key_path.suffix.lower() == ".pem")
+    data = cert_path.read_bytes()
+    certificate = x509.load_pem_x509_certificate(data) if pem[0] else x509.load_der_x509_certificate(data)
+    data = key_path.read_bytes()
+    load_key = serialization.load_pem_private_key if pem[1] else serialization.load_der_private_key
+    private_key = load_key(data, password=None)
+    _MATERIAL[(cert_path, key_path)] = (stamp, certificate, private_key)
+    return certificate, private_key
+
+
+async def _set_security(
+    client: Client, policy: type[SecurityPolicy], certificate: x509.Certificate, key: Any
+) -> None:
+    """asyncua 2.1.0's ``Client.set_security(policy, cert, key, mode=SignAndEncrypt)`` without a
+    server certificate, for a certificate and key already loaded (its own loads them from
+    files every time): the server's certificate from its endpoints over a discovery channel,
+    the client certificate checked against the application URI and host name (warnings only,
+    as asyncua does), then the policy installed on the client and its UA client."""
+    mode = ua.MessageSecurityMode.SignAndEncrypt
+    none = SecurityPolicyNone()
+    client.security_policy = none
+    client.uaclient.security_policy = none
+    endpoints = await client.connect_and_get_server_endpoints()
+    endpoint = Client.find_endpoint(endpoints, mode, policy.URI)
+    server_certificate = uacrypto.x509_from_der(endpoint.ServerCertificate)
+    uacrypto.check_certificate(certificate, client.application_uri, socket.gethostname())
+    client.security_policy = policy(server_certificate, certificate, key, mode, host_cert_chain=[])
+    client.uaclient.set_security(client.security_policy)
 
 
 def cli_identity(

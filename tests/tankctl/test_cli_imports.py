@@ -78,13 +78,17 @@ def _run(*argv: str, timeout_s: float = 600.0) -> tuple[subprocess.CompletedProc
 
 
 def test_importing_the_cli_loads_no_numerics() -> None:
+    """Nor, since the commands of other modules are mounted when used (decision 0037), the
+    transport, the config models or the operator commands' modules."""
     code = "import json, sys, tankctl.cli; print(json.dumps(sorted(sys.modules)))"
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=600, check=True
     )
     modules = json.loads(out.stdout)
-    assert "tankctl.cli" in modules and "tankctl.ops" in modules and "asyncua" in modules
+    assert "tankctl.cli" in modules and "tankctl.ops" in modules and "typer" in modules
     assert _loaded(modules) == []
+    assert not [m for m in modules if m.split(".")[0] in ("asyncua", "pydantic", "rich")]
+    assert not [m for m in modules if m.startswith("tankctl.ops.")]
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["setpoint", "--help"], ["status", "--help"]])
@@ -156,6 +160,9 @@ async def test_setpoint_and_status_against_a_real_plc_load_no_numerics() -> None
         assert p.returncode == 0, p.stderr
         assert p.stdout.startswith("PLC.LIC1.SP = 0.45 m")
         assert _loaded(modules) == []
+        # Nor what only other commands use (decision 0037): rich, the scenario models.
+        assert {"asyncua", "tankctl.ops.writes"} <= set(modules)
+        assert not {"rich", "tanklab.scenario", "tankctl.ops.status", "tankctl.security_cli"} & set(modules)
         async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as client:
             sp = await (await resolve(client, ["PLC.LIC1.SP"]))["PLC.LIC1.SP"].read_value()
         assert sp == pytest.approx(0.45)

@@ -102,6 +102,44 @@ def test_unreadable_and_invalid_yaml(tmp_path: Path) -> None:
         site_from_mapping([1, 2], "list.yaml")
 
 
+YAML_FILES = sorted((ROOT / "configs").rglob("*.yaml"))
+
+
+@pytest.mark.skipif(not hasattr(yaml, "CSafeLoader"), reason="PyYAML built without libyaml")
+@pytest.mark.parametrize("path", YAML_FILES, ids=lambda p: str(p.relative_to(ROOT / "configs")))
+def test_libyaml_reads_every_shipped_file_as_the_pure_python_loader_does(path: Path) -> None:
+    """read_yaml parses with libyaml when it can (decision 0037): the same objects as
+    ``yaml.safe_load`` for every site and scenario file, types included."""
+    from tanklab.config import read_yaml
+
+    fast, pure = read_yaml(path), yaml.safe_load(path.read_text(encoding="utf-8"))
+    assert fast == pure
+    assert json.dumps(fast, sort_keys=True, default=repr) == json.dumps(pure, sort_keys=True, default=repr)
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["plant: [unclosed\n", "a: 1\n  b: 2\n", "key: 'open\n", "- a\nb: 1\n", "x: !!python/name:os.system\n"],
+)
+def test_a_yaml_error_names_the_line_and_problem_the_pure_python_loader_names(
+    tmp_path: Path, text: str
+) -> None:
+    """A document libyaml refuses is parsed again by the pure-Python loader: the one-line
+    error is the one it gave before (line and problem), and nothing unsafe is constructed."""
+    from tanklab.config import read_yaml
+
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(yaml.YAMLError) as pure:
+        yaml.safe_load(text)
+    mark = getattr(pure.value, "problem_mark", None)
+    where = f"line {mark.line + 1}" if mark is not None else "(parse)"
+    problem = getattr(pure.value, "problem", None) or str(pure.value).splitlines()[0]
+    with pytest.raises(ConfigError) as got:
+        read_yaml(path)
+    assert str(got.value) == f"{path}: {where}: invalid YAML: {problem}"
+
+
 def test_environment_overrides_endpoints() -> None:
     site = load_site(
         ROOT / "configs/three_tank_energies_sim.yaml",

@@ -50,31 +50,36 @@ connected tier), :mod:`~tankctl.ops.options` (the shared options, declared once)
 :mod:`~tankctl.ops.run` (asyncio, one-line failures), :mod:`~tankctl.ops.display` (values for
 people), and a module per command group: ``writes``, ``gains``, ``status``, ``browse``,
 ``watch``, ``scenario`` (decision 0031).
+
+The names below are imported from their modules when first used (PEP 562), so that a command
+imports only its own module and what that needs: ``tankctl setpoint`` loads neither rich's
+tables nor the scenario models (decision 0037). :func:`register` mounts every command at once
+(``tankctl.cli`` mounts them one by one as they are used, :mod:`tankctl.lazy`).
 """
 
 from __future__ import annotations
 
-import typer
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from tankctl.ops.browse import browse
-from tankctl.ops.client import BrowsedNode, TierClient
-from tankctl.ops.errors import (
-    CallRefusedError,
-    LoginRefusedError,
-    RefusedError,
-    SiteMismatchError,
-    StoppedError,
-    UnreachableError,
-    UsageError,
-)
-from tankctl.ops.gains import gains
-from tankctl.ops.options import StackOptions, stack_command
-from tankctl.ops.scenario import scenario_run
-from tankctl.ops.stack import DEFAULT_TIMEOUT_S, TIERS, Stack, make_stack, resolve_endpoints
-from tankctl.ops.status import collect_status, render_status, status
-from tankctl.ops.watch import level_bar, sparkline, watch
-from tankctl.ops.writes import leak, loop_command, mode, setpoint, valve
-from tankctl.usage import OneLineUsage
+if TYPE_CHECKING:
+    import typer
+
+    from tankctl.ops.client import BrowsedNode, TierClient
+    from tankctl.ops.errors import (
+        CallRefusedError,
+        LoginRefusedError,
+        RefusedError,
+        SiteMismatchError,
+        StoppedError,
+        UnreachableError,
+        UsageError,
+    )
+    from tankctl.ops.options import StackOptions, stack_command
+    from tankctl.ops.scenario import add_scenario_commands, scenario_app
+    from tankctl.ops.stack import DEFAULT_TIMEOUT_S, TIERS, Stack, make_stack, resolve_endpoints
+    from tankctl.ops.status import collect_status, render_status
+    from tankctl.ops.watch import level_bar, sparkline
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -102,35 +107,70 @@ __all__ = [
     "stack_command",
 ]
 
+_HOME = {
+    "BrowsedNode": "client",
+    "TierClient": "client",
+    "CallRefusedError": "errors",
+    "LoginRefusedError": "errors",
+    "RefusedError": "errors",
+    "SiteMismatchError": "errors",
+    "StoppedError": "errors",
+    "UnreachableError": "errors",
+    "UsageError": "errors",
+    "StackOptions": "options",
+    "stack_command": "options",
+    "add_scenario_commands": "scenario",
+    "scenario_app": "scenario",
+    "scenario_run": "scenario",
+    "DEFAULT_TIMEOUT_S": "stack",
+    "TIERS": "stack",
+    "Stack": "stack",
+    "make_stack": "stack",
+    "resolve_endpoints": "stack",
+    "collect_status": "status",
+    "render_status": "status",
+    "level_bar": "watch",
+    "sparkline": "watch",
+    "leak": "writes",
+    "loop_command": "writes",
+    "mode": "writes",
+    "setpoint": "writes",
+    "valve": "writes",
+}
+"""The module of this package that defines each name the package exports. (``status``,
+``browse``, ``gains`` and ``watch`` are the modules of those commands: :data:`COMMANDS`.)"""
 
-scenario_app = typer.Typer(
-    help="Scenarios against a running stack.",
-    no_args_is_help=True,
-    pretty_exceptions_enable=False,
-    add_completion=False,
-)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "status": ("status", "status"),
+    "setpoint": ("writes", "setpoint"),
+    "leak": ("writes", "leak"),
+    "valve": ("writes", "valve"),
+    "loop": ("writes", "loop_command"),
+    "mode": ("writes", "mode"),
+    "gains": ("gains", "gains"),
+    "browse": ("browse", "browse"),
+    "watch": ("watch", "watch"),
+}
+"""The operator commands, in the order ``tankctl --help`` lists them: name -> (module of this
+package, function)."""
 
 
-def add_scenario_commands(group: typer.Typer) -> None:
-    """Add ``run`` to a ``scenario`` command group (this module's or an existing one)."""
-    group.command("run", cls=OneLineUsage)(scenario_run)
-
-
-add_scenario_commands(scenario_app)
+def __getattr__(name: str) -> Any:
+    """An exported name, imported from its module on first use (PEP 562)."""
+    home = _HOME.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{home}"), name)
+    globals()[name] = value
+    return value
 
 
 def register(app: typer.Typer) -> None:
     """Add the operator commands and the ``scenario`` group to the main ``tankctl`` app."""
-    for name, func in (
-        ("status", status),
-        ("setpoint", setpoint),
-        ("leak", leak),
-        ("valve", valve),
-        ("loop", loop_command),
-        ("mode", mode),
-        ("gains", gains),
-        ("browse", browse),
-        ("watch", watch),
-    ):
-        app.command(name, cls=OneLineUsage)(func)
+    from tankctl.ops.scenario import scenario_app
+    from tankctl.usage import OneLineUsage
+
+    for name, (module, func) in COMMANDS.items():
+        command = getattr(importlib.import_module(f"{__name__}.{module}"), func)
+        app.command(name, cls=OneLineUsage)(command)
     app.add_typer(scenario_app, name="scenario")

@@ -21,7 +21,7 @@ from tankctl.ops.errors import (
 )
 from tanklab.errors import LinkError, SecurityError, TanklabError
 from tanklab.tags import NAMESPACE_URI, Tag, Tier, identity_paths
-from tanklab_io.ua_client import ConnectError, Link
+from tanklab_io.ua_client import NAMESPACE_ARRAY, TANKLAB_INDEX, ConnectError, Link
 from tanklab_io.ua_security import cli_identity, client_setup
 
 if TYPE_CHECKING:
@@ -112,7 +112,10 @@ class TierClient:
             setup=client_setup(self.identity),
             timeout_s=self.timeout_s,
             client_name="tankctl",
+            namespace_index=TANKLAB_INDEX,  # checked by the first Read (connect)
         )
+        self._wanted: list[str] = []
+        self._first: dict[str, Any] = {}
 
     @property
     def tags(self) -> dict[str, Tag]:
@@ -130,9 +133,17 @@ class TierClient:
             raise UnreachableError(self.tier, self.url, "not connected")
         return self.link.client
 
+    def will_read(self, paths: Sequence[str]) -> TierClient:
+        """Read ``paths`` together with the site identity when this client connects: one Read
+        instead of two. The values are the tier's only once its identity is accepted, and the
+        next :meth:`read` of exactly those paths gets them (once; later reads ask the tier)."""
+        self._wanted = list(paths)
+        return self
+
     async def connect(self) -> TierClient:
         """Connect, look the namespace index up and check the tier's site identity with
-        :meth:`Stack.accept` (each within the timeout); a no-op when connected."""
+        :meth:`Stack.accept` (each within the timeout); a no-op when connected. The identity
+        and the paths of :meth:`will_read` are read in one Read."""
         if self.link.healthy:
             return self
         try:
@@ -142,13 +153,34 @@ class TierClient:
         paths = identity_paths(self.tier)
         if self.stack.resolved:  # the Config text is only needed to learn the site
             del paths["Config"]
+        identity = list(paths.values())
+        wanted = [p for p in self._wanted if p not in identity]
         try:
-            values = await self.read(list(paths.values()))
+            values = await self._first_read(identity + wanted)
             self.stack.accept(self.tier, self.url, {item: values[p] for item, p in paths.items()})
         except TanklabError:
             await self.close()
             raise
+        self._first = {p: values[p] for p in self._wanted}
         return self
+
+    async def _first_read(self, paths: Sequence[str]) -> dict[str, Any]:
+        """``paths`` read with the server's NamespaceArray in one Read, under the index of
+        ``urn:tanklab`` the link assumed (:data:`TANKLAB_INDEX`): the namespace lookup costs no
+        round trip of its own. A server that has the namespace elsewhere is read again under
+        its index; one that does not have it is unreachable, as when the lookup came first."""
+        nodes = [self.client.get_node(NAMESPACE_ARRAY), *(self.node(p) for p in paths)]
+        dvs = await self._linked(self.link.read_nodes(nodes))
+        uris = dvs[0].Value.Value if dvs[0].Value is not None else None
+        uris = uris if isinstance(uris, list) else []
+        if NAMESPACE_URI not in uris:
+            await self.close()
+            raise UnreachableError(self.tier, self.url, f"no {NAMESPACE_URI} namespace")
+        if uris.index(NAMESPACE_URI) != self.link.idx:
+            self.link.idx = uris.index(NAMESPACE_URI)
+            self.link.nodes = {}
+            return await self._read(paths)
+        return _values(paths, dvs[1:])
 
     def _connect_failure(self, stage: str, cause: BaseException) -> Exception:
         """What a failed connection attempt tells the operator: the security error as is, a
@@ -170,6 +202,7 @@ class TierClient:
 
     async def close(self) -> None:
         """Disconnect (idempotent, never raises)."""
+        self._first = {}
         await self.link.close()
 
     async def __aenter__(self) -> TierClient:
@@ -204,15 +237,17 @@ class TierClient:
             raise UnreachableError(self.tier, self.url, "not connected") from None
 
     async def read(self, paths: Sequence[str]) -> dict[str, Any]:
-        """Values of ``paths`` in one Read; a node answering a Bad status reads as None."""
+        """Values of ``paths`` in one Read; a node answering a Bad status reads as None. The
+        paths of :meth:`will_read`, read at connect, are not read again the first time."""
+        if self._first and list(paths) == list(self._first):
+            first, self._first = self._first, {}
+            return first
+        return await self._read(paths)
+
+    async def _read(self, paths: Sequence[str]) -> dict[str, Any]:
         if not paths:
             return {}
-        dvs = await self._linked(self.link.read(paths))
-        out: dict[str, Any] = {}
-        for path, dv in zip(paths, dvs, strict=True):
-            bad = dv.StatusCode is not None and dv.StatusCode.is_bad()
-            out[path] = None if bad or dv.Value is None else dv.Value.Value
-        return out
+        return _values(paths, await self._linked(self.link.read(paths)))
 
     async def write(self, path: str, value: Any) -> None:
         """Write one value with the tag's exact type; a Bad status raises :class:`RefusedError`."""
@@ -350,6 +385,15 @@ class TierClient:
                 else:
                     parent.outputs = args
         return roots
+
+
+def _values(paths: Sequence[str], dvs: Sequence[ua.DataValue]) -> dict[str, Any]:
+    """Read results by path; a node answering a Bad status reads as None."""
+    out: dict[str, Any] = {}
+    for path, dv in zip(paths, dvs, strict=True):
+        bad = dv.StatusCode is not None and dv.StatusCode.is_bad()
+        out[path] = None if bad or dv.Value is None else dv.Value.Value
+    return out
 
 
 def _browse_description(nid: ua.NodeId, reference_type: int) -> ua.BrowseDescription:

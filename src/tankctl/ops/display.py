@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
-from rich.console import Console
 
 from tanklab.tags import Tag
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 
 def show(tag: Tag, value: Any) -> str:
@@ -91,7 +93,10 @@ def plain(value: Any) -> Any:
 
 
 def stdout_console() -> Console:
-    """stdout console; 120 columns when not a terminal (pipes, tests) unless COLUMNS says."""
+    """stdout console; 120 columns when not a terminal (pipes, tests) unless COLUMNS says.
+    (rich is imported here: a write, which prints one plain line, does not load it.)"""
+    from rich.console import Console
+
     console = Console(markup=False, highlight=False, emoji=False)
     if not console.is_terminal and not os.environ.get("COLUMNS"):
         console.width = 120

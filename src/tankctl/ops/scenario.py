@@ -18,6 +18,7 @@ from tankctl.ops.options import StackOptions, stack_command
 from tankctl.ops.run import StopOnSignal, fail, run
 from tankctl.ops.stack import TIERS, Stack
 from tankctl.ops.writes import apply_loop_mode, write_and_tell
+from tankctl.usage import OneLineUsage
 from tanklab import paths
 from tanklab.config import load_site
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
@@ -287,3 +288,20 @@ async def _play(
             typer.echo(f"t={t:8.1f} s  end of scenario (duration {scenario.duration_s:g} s)")
     typer.echo(f"done: {applied} of {len(events)} events applied")
     return 0
+
+
+scenario_app = typer.Typer(
+    help="Scenarios against a running stack.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+"""The ``tankctl scenario`` group."""
+
+
+def add_scenario_commands(group: typer.Typer) -> None:
+    """Add ``run`` to a ``scenario`` command group (this module's or an existing one)."""
+    group.command("run", cls=OneLineUsage)(scenario_run)
+
+
+add_scenario_commands(scenario_app)

@@ -21,11 +21,12 @@ from tanklab.tags import Tier
 
 
 async def _read_tier(stack: Stack, tier: Tier) -> dict[str, Any] | UnreachableError:
-    """Every contract variable of a tier in one Read, or why the tier did not answer."""
+    """Every contract variable of a tier in one Read (the one that checks its identity, unless
+    the client was connected already to learn the site), or why the tier did not answer."""
     client = stack.client(tier)
     nodes = [t.path for t in client.tags.values() if t.kind == "variable"]
     try:
-        async with client:
+        async with client.will_read(nodes):  # with the identity, when not connected yet
             return await client.read(nodes)
     except UnreachableError as e:
         return e

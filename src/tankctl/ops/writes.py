@@ -35,7 +35,8 @@ def _write_one(stack: Stack, tier: Tier, path: Callable[[], str], value: Any) ->
     async def main() -> int:
         await stack.resolve(tier)
         node = path()
-        async with stack.client(tier) as client:
+        # The old value is read with the identity (one Read), unless resolve() connected already.
+        async with stack.client(tier).will_read([node]) as client:
             typer.echo(await write_and_tell(client, node, value))
         return 0
 
