@@ -11,7 +11,7 @@ Two measurements:
   setpoint written is the config's own (``setpoint_m``), so the stack's state does not change.
 - **import time** of the CLI (``python -X importtime``): ``import tankctl.cli`` is what every
   command pays before it parses its arguments; a command's own module is imported when the
-  command is used (decision 0037), so ``tankctl.ops.writes`` and ``tankctl.ops.status`` are what
+  command is used (decision 0039), so ``tankctl.ops.writes`` and ``tankctl.ops.status`` are what
   ``setpoint`` and ``status`` add, and the top entries of ``tankctl.ops.writes`` by cumulative
   time show what an operator command's imports are made of. ``import tankctl.simulate`` (the
   co-simulation, which the CLI imports only inside ``simulate`` and ``compare``) shows what
@@ -58,7 +58,7 @@ HEAVY = ("scipy.signal", "scipy.stats", "matplotlib", "osqp", "tankctl.cosim", "
 """Modules the operator path must not import (tests/tankctl/test_cli_imports.py guards them)."""
 
 OPERATOR_MODULES = ("tankctl.ops.writes", "tankctl.ops.status")
-"""What ``tankctl setpoint`` and ``tankctl status`` import when they run (decision 0037)."""
+"""What ``tankctl setpoint`` and ``tankctl status`` import when they run (decision 0039)."""
 TOP_MODULE = "tankctl.ops.writes"
 """The import whose top entries the section lists: ``setpoint``'s, an operator command's."""
 
@@ -343,7 +343,7 @@ def markdown(res: CliResults, top: int = 12) -> str:
         "",
         "Import cost (`python -X importtime -c 'import MODULE'`, the fastest of 3 fresh processes): "
         "`import tankctl.cli` is what every command pays before it parses its arguments; a "
-        "command's own module is imported when it is used (decision 0037): `tankctl.ops.writes` "
+        "command's own module is imported when it is used (decision 0039): `tankctl.ops.writes` "
         "for `setpoint`, `tankctl.ops.status` for `status`. The co-simulation (`tankctl.simulate`) "
         "is imported only by `simulate` and `compare` (docs/decisions/0023-lazy-cli-imports.md). "
         "Heavy modules checked: " + ", ".join(f"`{h}`" for h in HEAVY) + ".",

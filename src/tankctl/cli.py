@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
 class TankctlGroup(LazyGroup):
     """The ``tankctl`` group: the commands defined in other modules are imported when used
-    (:mod:`tankctl.lazy`, decision 0037); ``order`` is the order ``--help`` lists them in."""
+    (:mod:`tankctl.lazy`, decision 0039); ``order`` is the order ``--help`` lists them in."""
 
     lazy: ClassVar[dict[str, Lazy]] = {
         **{

@@ -1,4 +1,4 @@
-"""Commands of ``tankctl`` whose module is imported when the command is used (decision 0037).
+"""Commands of ``tankctl`` whose module is imported when the command is used (decision 0039).
 
 Every ``tankctl`` command is a fresh process. typer builds the click command of every command
 it knows before it parses the command line, so each process imported all of ``tankctl``: the

@@ -78,7 +78,7 @@ def _run(*argv: str, timeout_s: float = 600.0) -> tuple[subprocess.CompletedProc
 
 
 def test_importing_the_cli_loads_no_numerics() -> None:
-    """Nor, since the commands of other modules are mounted when used (decision 0037), the
+    """Nor, since the commands of other modules are mounted when used (decision 0039), the
     transport, the config models or the operator commands' modules."""
     code = "import json, sys, tankctl.cli; print(json.dumps(sorted(sys.modules)))"
     out = subprocess.run(
@@ -160,7 +160,7 @@ async def test_setpoint_and_status_against_a_real_plc_load_no_numerics() -> None
         assert p.returncode == 0, p.stderr
         assert p.stdout.startswith("PLC.LIC1.SP = 0.45 m")
         assert _loaded(modules) == []
-        # Nor what only other commands use (decision 0037): rich, the scenario models.
+        # Nor what only other commands use (decision 0039): rich, the scenario models.
         assert {"asyncua", "tankctl.ops.writes"} <= set(modules)
         assert not {"rich", "tanklab.scenario", "tankctl.ops.status", "tankctl.security_cli"} & set(modules)
         async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as client:

@@ -1,4 +1,4 @@
-"""``tankctl`` mounts the commands of other modules lazily (``tankctl.lazy``, decision 0037).
+"""``tankctl`` mounts the commands of other modules lazily (``tankctl.lazy``, decision 0039).
 
 The lazy group must be the same command line as the eager one it replaces: the same commands
 in the same order, the same ``--help`` of every command and group, the same one-line usage

@@ -1,4 +1,4 @@
-"""An operator command's first Read (decision 0037): the tier's NamespaceArray, its site
+"""An operator command's first Read (decision 0039): the tier's NamespaceArray, its site
 identity and the command's own values in one request, under the namespace index every tanklab
 tier has (2), checked by that same Read.
 

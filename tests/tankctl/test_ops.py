@@ -86,7 +86,7 @@ def _mounted() -> bool:
     """Whether the lead has mounted the operator commands on ``tankctl.cli.app``."""
     from tankctl import cli
 
-    # Mounted eagerly (registered on the app) or lazily (decision 0037: the group knows the name).
+    # Mounted eagerly (registered on the app) or lazily (decision 0039: the group knows the name).
     group: Any = typer.main.get_command(cli.app)
     return "setpoint" in {c.name for c in cli.app.registered_commands} or "setpoint" in group.commands
 

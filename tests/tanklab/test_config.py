@@ -108,7 +108,7 @@ YAML_FILES = sorted((ROOT / "configs").rglob("*.yaml"))
 @pytest.mark.skipif(not hasattr(yaml, "CSafeLoader"), reason="PyYAML built without libyaml")
 @pytest.mark.parametrize("path", YAML_FILES, ids=lambda p: str(p.relative_to(ROOT / "configs")))
 def test_libyaml_reads_every_shipped_file_as_the_pure_python_loader_does(path: Path) -> None:
-    """read_yaml parses with libyaml when it can (decision 0037): the same objects as
+    """read_yaml parses with libyaml when it can (decision 0039): the same objects as
     ``yaml.safe_load`` for every site and scenario file, types included."""
     from tanklab.config import read_yaml
 

@@ -1,5 +1,5 @@
 """A client identity's certificate and key are read and checked once per process while their
-files are unchanged (``tanklab_io.ua_security.identity_material``, decision 0037), and read
+files are unchanged (``tanklab_io.ua_security.identity_material``, decision 0039), and read
 again as soon as either file changes: nothing is kept across processes or written anywhere."""
 
 from __future__ import annotations

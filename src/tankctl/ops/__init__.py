@@ -53,7 +53,7 @@ people), and a module per command group: ``writes``, ``gains``, ``status``, ``br
 
 The names below are imported from their modules when first used (PEP 562), so that a command
 imports only its own module and what that needs: ``tankctl setpoint`` loads neither rich's
-tables nor the scenario models (decision 0037). :func:`register` mounts every command at once
+tables nor the scenario models (decision 0039). :func:`register` mounts every command at once
 (``tankctl.cli`` mounts them one by one as they are used, :mod:`tankctl.lazy`).
 """
 
