@@ -119,6 +119,7 @@ class MpcController:
         P, Aqp = qp.qp_matrices()
         q, lo, up = qp.qp_vectors(np.zeros(n), np.zeros(self._n_eta), np.zeros((self._N, nz)), model.u_op)
         self._backend.setup(P, Aqp, q, lo, up)
+        self._backend.set_vector_map(qp.vector_map)
         self._reset_runtime_state()
 
     def _reset_runtime_state(self) -> None:
@@ -211,6 +212,19 @@ class MpcController:
         disturbance : array_like, shape (n_eta,), optional
             Disturbance held over the horizon; default zeros.
         """
+        if (  # the usual case, four float vectors of the right shapes: one finite check
+            type(x) is np.ndarray
+            and type(r) is np.ndarray
+            and type(u_prev) is np.ndarray
+            and type(disturbance) is np.ndarray
+            and x.dtype == r.dtype == u_prev.dtype == disturbance.dtype == np.float64
+            and x.shape == (self._n,)
+            and r.shape == (self._nz,)
+            and u_prev.shape == (self._m,)
+            and disturbance.shape == (self._n_eta,)
+            and np.isfinite(np.concatenate((x, r, u_prev, disturbance))).all()
+        ):
+            return self._solve(x - self._model.x_op, disturbance, r, u_prev)
         if disturbance is None:
             d_ = np.zeros(self._n_eta)
         elif (
@@ -283,15 +297,20 @@ class MpcController:
     def _solve(self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray) -> MpcResult:
         """The step from the state estimate, disturbance, reference ((nz,) or (Np, nz)) and u(-1)."""
         qp = self._qp
+        # u(-1) clipped to where its rate window meets the input box: the first rate row's base
+        # in the QP and the projection's first move (Python floats, m numbers)
+        u_base = qp.rate_window_base(u_prev.tolist())
         # a constant reference (the usual case, also as a preview that repeats one row) takes
-        # the vectors as one product; so the same QP data always gives the same plan
+        # the vectors as one product of the step's data, in the backend (which keeps its own
+        # form of them from the same product); so the same QP data always gives the same plan
+        backend = self._backend
         if r.ndim == 1:
-            sol = self._backend.solve(*qp.constant_r_vectors(dx0, eta, r, u_prev))
+            sol = backend.solve(*backend.vectors(qp.step_data(dx0, eta, r, u_prev, u_base)))
         elif (r == r[0]).all():
-            sol = self._backend.solve(*qp.constant_r_vectors(dx0, eta, r[0], u_prev))
+            sol = backend.solve(*backend.vectors(qp.step_data(dx0, eta, r[0], u_prev, u_base)))
         else:
-            sol = self._backend.solve(*qp.qp_vectors(dx0, eta, r, u_prev))
-        solved_by: SolvedBy = self._backend.name
+            sol = backend.solve(*qp.qp_vectors(dx0, eta, r, u_prev))
+        solved_by: SolvedBy = backend.name
         if sol.x is not None and np.isfinite(sol.x).all():
             plan = qp.plan_of(sol.x)
             if sol.accurate:
@@ -308,7 +327,7 @@ class MpcController:
                 plan = np.vstack([self._plan[1:], self._plan[-1:]])
             else:
                 plan = np.tile(u_prev, (self._N, 1))  # nothing safe to shift yet: hold u(-1)
-        plan = self.project(plan, u_prev)
+        plan = self._project(plan, u_base)
         if status != MpcStatus.HELD or self._plan is not None:
             self._plan = plan  # the last safe plan (a held u(-1) is not one)
         z_pred = qp.predict_z(dx0, eta, plan)
@@ -359,24 +378,19 @@ class MpcController:
         errors, so the sequential pass (in Python floats: a few dozen numbers) starts at the first
         move that breaks one, and skips ahead again after a move it leaves unchanged.
         """
+        return self._project(plan, self._qp.rate_window_base(u_prev.tolist()))
+
+    def _project(self, plan: FloatArray, u_base: list[float]) -> FloatArray:
+        """:meth:`project` with u(-1) already clipped to its window (``QpFormulation.rate_window_base``)."""
         qp = self._qp
-        umin, umax = qp.u_min, qp.u_max
-        out = np.minimum(np.maximum(plan, umin), umax)  # np.clip's result, less call overhead
+        out = np.minimum(np.maximum(plan, qp.u_min), qp.u_max)  # np.clip's result, less call overhead
         if qp.has_rate_rows:
             if self._config.first_move_rate_limited:
-                out[0] = self._first_move(out[0].tolist(), u_prev.tolist())
+                out[0] = self._clamp_move(out[0].tolist(), u_base)
             first = self._first_broken(out)
             if first:
                 out = self._project_moves(out, first)
         return out
-
-    def _first_move(self, u0: list[float], u_prev: list[float]) -> list[float]:
-        """u0 clipped to the rate window of u(-1), itself first clipped to where that window
-        meets the input box (u0 already in the box; m numbers, in Python floats)."""
-        qp = self._qp
-        lo_prev, hi_prev = qp.u_prev_min_list, qp.u_prev_max_list
-        base = [min(max(v, lo_prev[j]), hi_prev[j]) for j, v in enumerate(u_prev)]
-        return self._clamp_move(u0, base)
 
     def _first_broken(self, plan: FloatArray) -> int:
         """Index of the first move of ``plan`` (rows of moves, the first one excluded) that breaks
@@ -387,8 +401,11 @@ class MpcController:
             broken = np.abs(d) > qp.du_max
         else:
             broken = (d < qp.du_min) | (d > qp.du_max)
-        rows = broken.any(axis=1)
-        return int(rows.argmax()) + 1 if rows.any() else 0
+        flat = broken.reshape(-1)  # row-major: the first True is in the first broken move
+        if not flat.size:
+            return 0
+        i = int(flat.argmax())
+        return i // self._m + 1 if flat[i] else 0
 
     def _project_moves(self, plan: FloatArray, first: int) -> FloatArray:
         """Clip moves ``first``..Np-1 in turn to the rate window of the move before. A move the
@@ -471,6 +488,7 @@ class MpcController:
             (old_u_op - new_model.u_op) / qp.su, self._N
         )
         self._backend.update_matrices(P, Aqp, x_offset)
+        self._backend.set_vector_map(qp.vector_map)
 
     # ------------------------------------------------------------------------------------------
     # properties
