@@ -419,6 +419,12 @@ class AugmentedKalmanFilter:
         self._prior, self._posterior = prior, post
         return post
 
+    def set_corrected(self, prior: FloatArray, posterior: FloatArray) -> None:
+        """Take a prior xi(k|k-1) and its posterior xi(k|k) = prior + Kf (y - Ca prior) that the
+        caller computed with this filter's gain (as :meth:`correct_prior` does, folded into a
+        product of its own); (n + n_eta,) each, finite, deviation variables, not changed later."""
+        self._prior, self._posterior = prior, posterior
+
     def predict(self, u: ArrayLike) -> None:
         """Predictor step: propagate the last posterior with the applied input u(k) (m,) [deviation].
 

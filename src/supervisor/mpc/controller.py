@@ -44,6 +44,8 @@ from supervisor.mpc.model import (
 )
 from tanklab.enums import MpcStatus
 
+_ONE = np.ones(1)
+
 
 class MpcController:
     """Offset-free constrained MPC with a steady-state Kalman filter (see the package docstring).
@@ -120,6 +122,7 @@ class MpcController:
         q, lo, up = qp.qp_vectors(np.zeros(n), np.zeros(self._n_eta), np.zeros((self._N, nz)), model.u_op)
         self._backend.setup(P, Aqp, q, lo, up)
         self._backend.set_vector_map(qp.vector_map)
+        self._set_correct_map()
         self._reset_runtime_state()
 
     def _reset_runtime_state(self) -> None:
@@ -259,30 +262,56 @@ class MpcController:
 
         Returns
         -------
-        (x, disturbance) : x(k|k) [m, absolute], shape (n,), and eta(k|k), shape (n_eta,).
+        (x, disturbance) : x(k|k) [m, absolute], shape (n,), and eta(k|k), shape (n_eta,) (read-only;
+        one product, :meth:`_set_correct_map`).
         """
-        n = self._n
         if (
             type(y) is np.ndarray
             and type(x_prior) is np.ndarray
             and type(disturbance_prior) is np.ndarray
             and y.dtype == x_prior.dtype == disturbance_prior.dtype == np.float64
             and y.shape == (self._model.n_measured,)
-            and x_prior.shape == (n,)
+            and x_prior.shape == (self._n,)
             and disturbance_prior.shape == (self._n_eta,)
-            and np.isfinite(np.concatenate((y, x_prior, disturbance_prior))).all()
         ):
-            y_, x_, d_ = y, x_prior, disturbance_prior
+            data = np.concatenate((x_prior, disturbance_prior, y, _ONE))
+            if not np.isfinite(data).all():  # the checks below name the value
+                data = self._correct_data(y, x_prior, disturbance_prior)
         else:
-            y_ = vector(y, self._model.n_measured, "y")
-            x_ = vector(x_prior, n, "x_prior")
-            d_ = vector(disturbance_prior, self._n_eta, "disturbance_prior")
-        y_dev = y_ - self._qp.y_op
-        if self._est_subset:
-            y_dev = y_dev[self._est_rows]
+            data = self._correct_data(y, x_prior, disturbance_prior)
+        out = self._correct_map @ data
+        out.flags.writeable = False
+        na, n = self._n + self._n_eta, self._n
+        self._estimator.set_corrected(out[:na], out[na : 2 * na])
+        return out[2 * na :], out[na + n : 2 * na]
+
+    def _correct_data(self, y: ArrayLike, x_prior: ArrayLike, disturbance_prior: ArrayLike) -> FloatArray:
+        """[x_prior; eta_prior; y; 1] of :meth:`correct`, each value checked (ValueError naming it)."""
+        y_ = vector(y, self._model.n_measured, "y")
+        x_ = vector(x_prior, self._n, "x_prior")
+        d_ = vector(disturbance_prior, self._n_eta, "disturbance_prior")
+        return np.concatenate((x_, d_, y_, _ONE))
+
+    def _set_correct_map(self) -> None:
+        """The map of :meth:`correct`: [prior; posterior; x(k|k)] = M [x_prior; eta_prior; y; 1]
+        with prior = [x_prior - x_op; eta_prior] and posterior = (I - Kf Ca) prior + Kf S (y - y_op)
+        (S selects the filtered rows of y), deviation variables, and x(k|k) = x_op + its state
+        part [m]; rebuilt with the filter's gain on every model change."""
+        n, ne, ny = self._n, self._n_eta, self._model.n_measured
+        na = n + ne
+        K = self._estimator.gain
+        Ca = self._estimator.augmented[2]
         x_op = self._model.x_op
-        post = self._estimator.correct_prior(np.concatenate((x_ - x_op, d_)), y_dev)
-        return x_op + post[:n], post[n:]
+        E = np.zeros((na, na + ny + 1))  # prior = E data
+        E[:, :na] = np.eye(na)
+        E[:n, -1] = -x_op
+        Y = np.zeros((self._est_rows.size, na + ny + 1))  # S (y - y_op) = Y data
+        Y[np.arange(self._est_rows.size), na + self._est_rows] = 1.0
+        Y[:, -1] = -self._qp.y_op[self._est_rows]
+        post = (np.eye(na) - K @ Ca) @ E + K @ Y
+        x_abs = post[:n].copy()
+        x_abs[:, -1] += x_op
+        self._correct_map = np.ascontiguousarray(np.vstack([E, post, x_abs]))
 
     def _reference(self, r: ArrayLike) -> FloatArray:
         """r checked: (nz,) for a constant reference or (Np, nz) for a preview (both broadcast
@@ -489,6 +518,7 @@ class MpcController:
         )
         self._backend.update_matrices(P, Aqp, x_offset)
         self._backend.set_vector_map(qp.vector_map)
+        self._set_correct_map()
 
     # ------------------------------------------------------------------------------------------
     # properties

@@ -511,8 +511,8 @@ class QpFormulation:
         """u(-1) [m^3/s] clipped so that its rate window [u(-1) + du_min, u(-1) + du_max] meets
         [u_min, u_max] (the physical bounds win), in Python floats (m numbers): the base of the
         first rate row and of the projection's first move."""
-        lo, hi = self.u_prev_min_list, self.u_prev_max_list
-        return [min(max(v, lo[j]), hi[j]) for j, v in enumerate(u_prev)]
+        bounds = zip(u_prev, self.u_prev_min_list, self.u_prev_max_list, strict=True)
+        return [min(max(v, lo), hi) for v, lo, hi in bounds]
 
     def constant_r_vectors(
         self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray
