@@ -270,7 +270,7 @@ class DaqpBackend:
         nv, nc, nd = self._nv, self._n_rows, self._up_index.size
         q, lo, up = out[:nv], out[nv : nv + nc], out[nv + nc : nv + 2 * nc]
         for v in (q, lo, up):
-            v.flags.writeable = False  # what is handed out is what daqp's form was made from
+            v.setflags(write=False)  # what is handed out is what daqp's form was made from
         k = nv + 2 * nc
         self._given = (q, lo, up)
         self._shifted = (out[k : k + nv], out[k + nv : k + nv + nd], out[k + nv + nd :])
@@ -377,7 +377,7 @@ class OsqpBackend:
 
     def vectors(self, th: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         out = self._map @ th
-        out.flags.writeable = False
+        out.setflags(write=False)
         nv, nc = self._nv, self._nc
         return out[:nv], out[nv : nv + nc], out[nv + nc :]
 

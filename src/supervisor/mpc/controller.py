@@ -280,7 +280,7 @@ class MpcController:
         else:
             data = self._correct_data(y, x_prior, disturbance_prior)
         out = self._correct_map @ data
-        out.flags.writeable = False
+        out.setflags(write=False)
         na, n = self._n + self._n_eta, self._n
         self._estimator.set_corrected(out[:na], out[na : 2 * na])
         return out[2 * na :], out[na + n : 2 * na]
@@ -378,7 +378,7 @@ class MpcController:
         this step's own arrays, handed out read-only; r and u(-1) are the caller's, so copied
         (the cost is evaluated from them when first read)."""
         planned = readonly(plan)
-        return MpcResult(
+        return MpcResult.of_step(
             u=planned[0],
             status=status,
             osqp_status=sol.status,
