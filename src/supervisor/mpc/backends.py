@@ -55,6 +55,7 @@ import osqp
 import scipy.linalg
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from supervisor.mpc.model import FloatArray
 
@@ -143,6 +144,15 @@ class QpBackend(Protocol):
         ...
 
 
+def _one_blas_thread() -> Any:
+    """A context with BLAS on one thread: OpenBLAS's blocked Cholesky and its products round
+    differently on two threads than on one (5e-16 in the plans), and the tiers run on one
+    (tanklab_io.threads); so the matrices daqp is given are the same in every process (the
+    co-simulation and the lock-step processes agree bit for bit). Setup and model updates only;
+    a no-op where BLAS is on one thread already."""
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _full_symmetric(P_upper: sp.csc_matrix) -> FloatArray:
     """The dense symmetric matrix of an upper triangle."""
     U = P_upper.toarray()
@@ -210,7 +220,8 @@ class DaqpBackend:
     ) -> None:
         H = _full_symmetric(P)
         try:
-            chol = scipy.linalg.cho_factor(H)
+            with _one_blas_thread():
+                chol = scipy.linalg.cho_factor(H)
         except np.linalg.LinAlgError as e:
             raise ValueError(f"daqp setup failed: P is not positive definite ({e})") from e
         A_general = np.ascontiguousarray(A.tocsr()[self._general].toarray())
@@ -251,9 +262,10 @@ class DaqpBackend:
         th-part is zero, stay the constant +-inf); kept with M itself in one matrix."""
         nv, nc = self._nv, self._n_rows
         Mq, Ml, Mu = M[:nv], M[nv : nv + nc], M[nv + nc :]
-        C = -scipy.linalg.cho_solve(self._chol, Mq)
-        # daqp's rows act on w as the identity (simple bounds) and A_general (general rows)
-        shift = np.vstack([C, self._A_general @ C])
+        with _one_blas_thread():
+            C = -scipy.linalg.cho_solve(self._chol, Mq)
+            # daqp's rows act on w as the identity (simple bounds) and A_general (general rows)
+            shift = np.vstack([C, self._A_general @ C])
         maps = []
         for Mb, inf in ((Mu, np.inf), (Ml, -np.inf)):
             ext = np.vstack([Mb, np.zeros(Mb.shape[1])])
