@@ -419,6 +419,12 @@ class AugmentedKalmanFilter:
         self._prior, self._posterior = prior, post
         return post
 
+    def set_corrected(self, prior: FloatArray, posterior: FloatArray) -> None:
+        """Take a prior xi(k|k-1) and its posterior xi(k|k) = prior + Kf (y - Ca prior) that the
+        caller computed with this filter's gain (as :meth:`correct_prior` does, folded into a
+        product of its own); (n + n_eta,) each, finite, deviation variables, not changed later."""
+        self._prior, self._posterior = prior, posterior
+
     def predict(self, u: ArrayLike) -> None:
         """Predictor step: propagate the last posterior with the applied input u(k) (m,) [deviation].
 
@@ -464,7 +470,7 @@ class AugmentedKalmanFilter:
         # predict and correct in one product (``_sample_map``); the estimate is read-only views
         na = self._prior.size
         out = self._sample_map @ np.concatenate((self._posterior, u_, y_))
-        out.flags.writeable = False
+        out.setflags(write=False)
         self._prior = out[:na]
         self._posterior = out[na : 2 * na]
         return self._make_estimate(self._posterior, out[2 * na :])
@@ -473,5 +479,5 @@ class AugmentedKalmanFilter:
         """Read-only views of xi and innov (the filter replaces, never mutates, its vectors)."""
         x, d, iv = xi[: self._n], xi[self._n :], innov[:]
         for a in (x, d, iv):
-            a.flags.writeable = False
+            a.setflags(write=False)
         return StateEstimate(x=x, disturbance=d, innovation=iv)

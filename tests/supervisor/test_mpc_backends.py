@@ -187,3 +187,41 @@ def test_the_solver_choice_follows_the_form_and_refuses_daqp_on_the_sparse_form(
         _kortela_like(solver="qpoases")
     # with the solver named, "auto" picks the form daqp solves, at any horizon
     assert _kortela_like(horizon=60, solver="daqp", formulation="auto").formulation == "condensed"
+
+
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_the_vectors_of_the_step_data_are_the_qps_and_solve_to_the_same_plan(solver: str) -> None:
+    """backend.vectors(th) gives formulation.qp_vectors' q, l, u (to rounding), read-only; daqp
+    solves them from its own product (the shifted bounds) and from copies (shifting them itself)
+    to the same optimum."""
+    ctrl = _kortela_like(solver=solver, formulation="condensed", z_max=0.46)
+    qp, backend = ctrl._qp, ctrl.backend
+    x, r, u_prev = np.array([0.41, 0.19, 0.3]), np.array([0.45, 0.2]), np.array([5e-5, 3.05e-5])
+    dx0, eta = x - ctrl.model.x_op, np.array([2e-7, -1e-7])
+    th = qp.step_data(dx0, eta, r, u_prev, qp.rate_window_base(u_prev.tolist()))
+    q, lo, up = backend.vectors(th)
+    ref = qp.qp_vectors(dx0, eta, np.broadcast_to(r, (ctrl.horizon, 2)), u_prev)
+    for got, want in zip((q, lo, up), ref, strict=True):
+        assert not got.flags.writeable
+        finite = np.isfinite(want)
+        assert np.array_equal(np.isfinite(got), finite) and np.array_equal(got[~finite], want[~finite])
+        scale = max(1.0, float(np.abs(want[finite]).max()))
+        assert np.max(np.abs(got[finite] - want[finite])) <= 1e-12 * scale
+    mapped = backend.solve(q, lo, up)
+    copied = backend.solve(q.copy(), lo.copy(), up.copy())
+    assert mapped.x is not None and copied.x is not None
+    assert np.max(np.abs(mapped.x - copied.x)) <= 1e-9
+
+
+def test_correct_after_a_model_update_uses_the_new_gain_and_operating_point() -> None:
+    ctrl = _kortela_like()
+    ctrl.update_model(ctrl.model.A * 0.999, ctrl.model.B, x_op=ctrl.model.x_op + 0.01)
+    kf, x_op = ctrl.estimator, ctrl.model.x_op
+    y, x_prior, eta_prior = x_op + 0.003, x_op - 0.002, np.array([1e-7, -2e-7])
+    x, eta = ctrl.correct(y, x_prior, eta_prior)
+    prior = np.concatenate([x_prior - x_op, eta_prior])
+    post = prior + kf.gain @ ((y - x_op) - kf.augmented[2] @ prior)
+    np.testing.assert_allclose(x, x_op + post[:3], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(eta, post[3:], rtol=0, atol=1e-18)
+    est = kf.estimate
+    assert est is not None and np.allclose(est.x, post[:3], rtol=0, atol=1e-15)

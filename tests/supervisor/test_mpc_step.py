@@ -6,6 +6,8 @@ filter's predictor and corrector called one after the other; the step's input ch
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -179,3 +181,16 @@ def test_the_cost_read_later_is_the_solved_models_and_ignores_later_changes_to_t
     model = ctrl.model
     ctrl.update_model(model.A * 0.99, model.B * 1.1)
     assert res.objective == pytest.approx(expected, rel=1e-9)
+
+
+def test_a_result_made_by_of_step_is_the_dataclass_made_by_its_init() -> None:
+    ctrl = _controller()
+    res = ctrl.step(np.array([0.41, 0.19, 0.3]), np.array([0.41, 0.2]), U_OP.copy())
+    values = {f.name: getattr(res, f.name) for f in dataclasses.fields(MpcResult)}
+    made = MpcResult(**values)
+    assert res == made and repr(res) == repr(made)
+    assert res.objective == made.objective and res.max_output_violation == made.max_output_violation
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.u = res.u  # type: ignore[misc]
+    with pytest.raises(TypeError, match="exactly the fields"):
+        MpcResult.of_step(**{k: v for k, v in values.items() if k != "cost"})

@@ -12,8 +12,21 @@ daqp (:class:`DaqpBackend`, the default on the condensed QP): a dual active-set 
 dense QPs, exact on its final active set (the optimum to rounding, no tolerance ladder). Rows of
 Aqp that are a unit vector on one variable (the input box u~ in [u~min, u~max] and eps~ >= 0)
 become daqp's simple bounds; the other rows are general constraints. The model object is set up
-once; each step updates f and the bounds and solves hot-started from the previous step's
-working set (near a steady state the set is unchanged and daqp only re-solves on it).
+once; each step updates the bounds and solves hot-started from the previous step's working
+set (near a steady state the set is unchanged and daqp only re-solves on it).
+
+daqp is given the QP without its linear term, in the variable w = v - c shifted by the
+unconstrained minimiser c = -P^-1 q (P is positive definite on the condensed QP)::
+
+    1/2 v' P v + q' v = 1/2 w' P w + const,   l - Aqp c <= Aqp w <= u - Aqp c
+
+so a step changes only daqp's bounds. daqp refreshes its whole internal (LDP) form when f
+changes, a product with its constraint matrix, ~30 us of the ~50 us of daqp per step at Np = 40
+(160 x 240), against ~5 us for the bounds alone. c and the shifted bounds are affine in the
+step's data th, like q, l and u (``QpFormulation.vector_map``): ``set_vector_map`` folds the
+shift into that map once per model, and ``vectors(th)`` gives q, l, u and daqp's bounds and c
+from one product. The solution is v = w + c (equal to the unshifted QP's to rounding: 2e-13 of
+the input range on the Kortela loop at Np = 40, cond(P) = 4e3).
 
 OSQP (:class:`OsqpBackend`, the default on the sparse QP): warm-started from the previous primal
 and dual solution shifted by one sample. Tolerance ladder (decision 0009): with the papers' tuning
@@ -32,14 +45,17 @@ The module is pure: no clock reads of its own (the times are the solvers' own re
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
 import daqp
 import numpy as np
 import osqp
+import scipy.linalg
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from supervisor.mpc.model import FloatArray
 
@@ -108,6 +124,17 @@ class QpBackend(Protocol):
         kept primal warm start (the plan moves in scaled units when u_op moves)."""
         ...
 
+    def set_vector_map(self, M: FloatArray) -> None:
+        """Take the affine map [q; l; u] = M th from the step's data th to the QP's vectors
+        (``QpFormulation.vector_map``); called after ``setup`` and every ``update_matrices``."""
+        ...
+
+    def vectors(self, th: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """q, l, u of the step's data th (read-only views of one product). The backend keeps its
+        own form of the same vectors from that product and uses it when ``solve`` is given
+        exactly these arrays."""
+        ...
+
     def solve(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> QpSolution:
         """Solve with this step's vectors, warm- or hot-started from the previous step."""
         ...
@@ -115,6 +142,15 @@ class QpBackend(Protocol):
     def reset(self) -> None:
         """Forget the warm or hot start (the next solve starts cold)."""
         ...
+
+
+def _one_blas_thread() -> Any:
+    """A context with BLAS on one thread: OpenBLAS's blocked Cholesky and its products round
+    differently on two threads than on one (5e-16 in the plans), and the tiers run on one
+    (tanklab_io.threads); so the matrices daqp is given are the same in every process (the
+    co-simulation and the lock-step processes agree bit for bit). Setup and model updates only;
+    a no-op where BLAS is on one thread already."""
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _full_symmetric(P_upper: sp.csc_matrix) -> FloatArray:
@@ -139,7 +175,7 @@ def _simple_bounds(A: sp.csc_matrix) -> tuple[NDArray[np.int64], NDArray[np.int6
 
 
 class DaqpBackend:
-    """daqp's hot-started model on the dense QP (module docstring).
+    """daqp's hot-started model on the dense QP, given without its linear term (module docstring).
 
     Parameters
     ----------
@@ -154,6 +190,11 @@ class DaqpBackend:
         self._general = np.zeros(0, dtype=np.int64)
         self._up_index = np.zeros(0, dtype=np.int64)
         self._n_rows = 0
+        self._nv = 0
+        self._map = np.zeros((0, 0))
+        # the arrays last handed out by ``vectors`` and daqp's form of them (same product)
+        self._given: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        self._shifted: tuple[FloatArray, FloatArray, FloatArray] | None = None
 
     @property
     def name(self) -> BackendName:
@@ -168,6 +209,7 @@ class DaqpBackend:
         # entry at index nc), then the general rows of A
         self._up_index = np.concatenate([np.where(self._bound_row >= 0, self._bound_row, nc), self._general])
         self._n_rows = nc
+        self._nv = A.shape[1]
         # l and u with one extra, infinite entry each (the missing bounds), filled per step
         self._ext_lo = np.full(nc + 1, -np.inf)
         self._ext_up = np.full(nc + 1, np.inf)
@@ -177,15 +219,21 @@ class DaqpBackend:
         self, P: sp.csc_matrix, A: sp.csc_matrix, q: FloatArray, lo: FloatArray, up: FloatArray
     ) -> None:
         H = _full_symmetric(P)
+        try:
+            with _one_blas_thread():
+                chol = scipy.linalg.cho_factor(H)
+        except np.linalg.LinAlgError as e:
+            raise ValueError(f"daqp setup failed: P is not positive definite ({e})") from e
         A_general = np.ascontiguousarray(A.tocsr()[self._general].toarray())
-        bu, bl = self._bounds(lo, up)
+        self._chol, self._A_general = chol, A_general
+        self._given = self._shifted = None
+        _, bu, bl = self._shift(q, lo, up)
         model = daqp.Model()
-        flag, _ = model.setup(H, np.ascontiguousarray(q, dtype=np.float64), A_general, bu, bl)
+        flag, _ = model.setup(H, None, A_general, bu, bl)  # no linear term: f = 0 (module docstring)
         if flag < 0:
             raise ValueError(f"daqp setup failed: exit flag {flag} (is P positive definite?)")
         model.settings = {"iter_limit": self._iter_limit}
         self._model = model
-        self._A_general = A_general
 
     def _bounds(self, lo: FloatArray, up: FloatArray) -> tuple[FloatArray, FloatArray]:
         """daqp's (bupper, blower): the rows reordered (daqp takes +-inf as an absent bound)."""
@@ -194,21 +242,72 @@ class DaqpBackend:
         self._ext_lo[:n] = lo
         return self._ext_up[self._up_index], self._ext_lo[self._up_index]
 
+    def _shift(
+        self, q: FloatArray, lo: FloatArray, up: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(c, bupper, blower) for w = v - c, c = -P^-1 q: daqp's bounds (:meth:`_bounds`) minus
+        c on the simple bounds and minus A_general c on the general rows (+-inf stay +-inf)."""
+        c = -scipy.linalg.cho_solve(self._chol, q)
+        bu, bl = self._bounds(lo, up)
+        nv = self._nv
+        shift = self._A_general @ c
+        for b in (bu, bl):
+            b[:nv] -= c
+            b[nv:] -= shift
+        return c, bu, bl
+
+    def set_vector_map(self, M: FloatArray) -> None:
+        """The map th -> [c; bupper; blower] (daqp's row order) from [q; l; u] = M th: c = -P^-1 q
+        and the bounds shifted as in :meth:`_shift`, column by column (rows infinite in M, whose
+        th-part is zero, stay the constant +-inf); kept with M itself in one matrix."""
+        nv, nc = self._nv, self._n_rows
+        Mq, Ml, Mu = M[:nv], M[nv : nv + nc], M[nv + nc :]
+        with _one_blas_thread():
+            C = -scipy.linalg.cho_solve(self._chol, Mq)
+            # daqp's rows act on w as the identity (simple bounds) and A_general (general rows)
+            shift = np.vstack([C, self._A_general @ C])
+        maps = []
+        for Mb, inf in ((Mu, np.inf), (Ml, -np.inf)):
+            ext = np.vstack([Mb, np.zeros(Mb.shape[1])])
+            ext[-1, -1] = inf  # the missing simple bounds (index nc of the daqp rows)
+            B = ext[self._up_index]
+            finite = np.isfinite(B[:, -1])
+            B[finite] -= shift[finite]
+            maps.append(B)
+        self._map = np.ascontiguousarray(np.vstack([M, C, *maps]))
+        self._given = self._shifted = None
+
+    def vectors(self, th: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        out = self._map @ th
+        nv, nc, nd = self._nv, self._n_rows, self._up_index.size
+        q, lo, up = out[:nv], out[nv : nv + nc], out[nv + nc : nv + 2 * nc]
+        for v in (q, lo, up):
+            v.setflags(write=False)  # what is handed out is what daqp's form was made from
+        k = nv + 2 * nc
+        self._given = (q, lo, up)
+        self._shifted = (out[k : k + nv], out[k + nv : k + nv + nd], out[k + nv + nd :])
+        return q, lo, up
+
     def update_matrices(self, P: sp.csc_matrix, A: sp.csc_matrix, x_offset: FloatArray) -> None:
         # a re-linearisation changes H and A: a new setup (the hot start is a working set of
-        # the old QP, so it is not carried over)
+        # the old QP, so it is not carried over); the caller sets the new vector map
         del x_offset
         zero = np.zeros(P.shape[0])
         self._make(P, A, zero, np.full(self._n_rows, -np.inf), np.full(self._n_rows, np.inf))
 
     def solve(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> QpSolution:
-        bu, bl = self._bounds(lo, up)
-        self._model.update(f=q, bupper=bu, blower=bl)
-        x, _, flag, info = self._model.solve()
+        given, self._given = self._given, None
+        if given is not None and self._shifted is not None and all(map(operator.is_, given, (q, lo, up))):
+            c, bu, bl = self._shifted  # the product of ``vectors`` that made q, lo and up
+        else:
+            c, bu, bl = self._shift(q, lo, up)
+        self._model.update(bupper=bu, blower=bl)
+        w, _, flag, info = self._model.solve()
         status = DAQP_STATUS.get(int(flag), f"exit flag {int(flag)}")
         iterations, time_s = int(info["iterations"]), float(info["solve_time"])
-        x = np.array(x, dtype=np.float64)
+        x = np.array(w, dtype=np.float64)
         if flag > 0 and x.shape == (q.size,) and np.isfinite(x).all():
+            x += c
             return QpSolution(x=x, accurate=True, status=status, iterations=iterations, time_s=time_s)
         self.reset()  # a failed solve's working set is no start for the next one
         return QpSolution(x=None, accurate=False, status=status, iterations=iterations, time_s=time_s)
@@ -255,6 +354,7 @@ class OsqpBackend:
         self._ws_x: FloatArray | None = None
         self._ws_y: FloatArray | None = None
         self._nv = self._nc = 0
+        self._map = np.zeros((0, 0))
 
     @property
     def name(self) -> BackendName:
@@ -283,6 +383,15 @@ class OsqpBackend:
             )
         except Exception as e:  # OSQPException / ValueError from the extension
             raise ValueError(f"OSQP setup failed: {e!r}") from e
+
+    def set_vector_map(self, M: FloatArray) -> None:
+        self._map = M
+
+    def vectors(self, th: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        out = self._map @ th
+        out.setflags(write=False)
+        nv, nc = self._nv, self._nc
+        return out[:nv], out[nv : nv + nc], out[nv + nc :]
 
     def update_matrices(self, P: sp.csc_matrix, A: sp.csc_matrix, x_offset: FloatArray) -> None:
         self._solver.update(Px=P.data, Ax=A.data)

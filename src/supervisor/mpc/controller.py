@@ -44,6 +44,8 @@ from supervisor.mpc.model import (
 )
 from tanklab.enums import MpcStatus
 
+_ONE = np.ones(1)
+
 
 class MpcController:
     """Offset-free constrained MPC with a steady-state Kalman filter (see the package docstring).
@@ -119,6 +121,8 @@ class MpcController:
         P, Aqp = qp.qp_matrices()
         q, lo, up = qp.qp_vectors(np.zeros(n), np.zeros(self._n_eta), np.zeros((self._N, nz)), model.u_op)
         self._backend.setup(P, Aqp, q, lo, up)
+        self._backend.set_vector_map(qp.vector_map)
+        self._set_correct_map()
         self._reset_runtime_state()
 
     def _reset_runtime_state(self) -> None:
@@ -211,6 +215,19 @@ class MpcController:
         disturbance : array_like, shape (n_eta,), optional
             Disturbance held over the horizon; default zeros.
         """
+        if (  # the usual case, four float vectors of the right shapes: one finite check
+            type(x) is np.ndarray
+            and type(r) is np.ndarray
+            and type(u_prev) is np.ndarray
+            and type(disturbance) is np.ndarray
+            and x.dtype == r.dtype == u_prev.dtype == disturbance.dtype == np.float64
+            and x.shape == (self._n,)
+            and r.shape == (self._nz,)
+            and u_prev.shape == (self._m,)
+            and disturbance.shape == (self._n_eta,)
+            and np.isfinite(np.concatenate((x, r, u_prev, disturbance))).all()
+        ):
+            return self._solve(x - self._model.x_op, disturbance, r, u_prev)
         if disturbance is None:
             d_ = np.zeros(self._n_eta)
         elif (
@@ -245,30 +262,56 @@ class MpcController:
 
         Returns
         -------
-        (x, disturbance) : x(k|k) [m, absolute], shape (n,), and eta(k|k), shape (n_eta,).
+        (x, disturbance) : x(k|k) [m, absolute], shape (n,), and eta(k|k), shape (n_eta,) (read-only;
+        one product, :meth:`_set_correct_map`).
         """
-        n = self._n
         if (
             type(y) is np.ndarray
             and type(x_prior) is np.ndarray
             and type(disturbance_prior) is np.ndarray
             and y.dtype == x_prior.dtype == disturbance_prior.dtype == np.float64
             and y.shape == (self._model.n_measured,)
-            and x_prior.shape == (n,)
+            and x_prior.shape == (self._n,)
             and disturbance_prior.shape == (self._n_eta,)
-            and np.isfinite(np.concatenate((y, x_prior, disturbance_prior))).all()
         ):
-            y_, x_, d_ = y, x_prior, disturbance_prior
+            data = np.concatenate((x_prior, disturbance_prior, y, _ONE))
+            if not np.isfinite(data).all():  # the checks below name the value
+                data = self._correct_data(y, x_prior, disturbance_prior)
         else:
-            y_ = vector(y, self._model.n_measured, "y")
-            x_ = vector(x_prior, n, "x_prior")
-            d_ = vector(disturbance_prior, self._n_eta, "disturbance_prior")
-        y_dev = y_ - self._qp.y_op
-        if self._est_subset:
-            y_dev = y_dev[self._est_rows]
+            data = self._correct_data(y, x_prior, disturbance_prior)
+        out = self._correct_map @ data
+        out.setflags(write=False)
+        na, n = self._n + self._n_eta, self._n
+        self._estimator.set_corrected(out[:na], out[na : 2 * na])
+        return out[2 * na :], out[na + n : 2 * na]
+
+    def _correct_data(self, y: ArrayLike, x_prior: ArrayLike, disturbance_prior: ArrayLike) -> FloatArray:
+        """[x_prior; eta_prior; y; 1] of :meth:`correct`, each value checked (ValueError naming it)."""
+        y_ = vector(y, self._model.n_measured, "y")
+        x_ = vector(x_prior, self._n, "x_prior")
+        d_ = vector(disturbance_prior, self._n_eta, "disturbance_prior")
+        return np.concatenate((x_, d_, y_, _ONE))
+
+    def _set_correct_map(self) -> None:
+        """The map of :meth:`correct`: [prior; posterior; x(k|k)] = M [x_prior; eta_prior; y; 1]
+        with prior = [x_prior - x_op; eta_prior] and posterior = (I - Kf Ca) prior + Kf S (y - y_op)
+        (S selects the filtered rows of y), deviation variables, and x(k|k) = x_op + its state
+        part [m]; rebuilt with the filter's gain on every model change."""
+        n, ne, ny = self._n, self._n_eta, self._model.n_measured
+        na = n + ne
+        K = self._estimator.gain
+        Ca = self._estimator.augmented[2]
         x_op = self._model.x_op
-        post = self._estimator.correct_prior(np.concatenate((x_ - x_op, d_)), y_dev)
-        return x_op + post[:n], post[n:]
+        E = np.zeros((na, na + ny + 1))  # prior = E data
+        E[:, :na] = np.eye(na)
+        E[:n, -1] = -x_op
+        Y = np.zeros((self._est_rows.size, na + ny + 1))  # S (y - y_op) = Y data
+        Y[np.arange(self._est_rows.size), na + self._est_rows] = 1.0
+        Y[:, -1] = -self._qp.y_op[self._est_rows]
+        post = (np.eye(na) - K @ Ca) @ E + K @ Y
+        x_abs = post[:n].copy()
+        x_abs[:, -1] += x_op
+        self._correct_map = np.ascontiguousarray(np.vstack([E, post, x_abs]))
 
     def _reference(self, r: ArrayLike) -> FloatArray:
         """r checked: (nz,) for a constant reference or (Np, nz) for a preview (both broadcast
@@ -283,15 +326,20 @@ class MpcController:
     def _solve(self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray) -> MpcResult:
         """The step from the state estimate, disturbance, reference ((nz,) or (Np, nz)) and u(-1)."""
         qp = self._qp
+        # u(-1) clipped to where its rate window meets the input box: the first rate row's base
+        # in the QP and the projection's first move (Python floats, m numbers)
+        u_base = qp.rate_window_base(u_prev.tolist())
         # a constant reference (the usual case, also as a preview that repeats one row) takes
-        # the vectors as one product; so the same QP data always gives the same plan
+        # the vectors as one product of the step's data, in the backend (which keeps its own
+        # form of them from the same product); so the same QP data always gives the same plan
+        backend = self._backend
         if r.ndim == 1:
-            sol = self._backend.solve(*qp.constant_r_vectors(dx0, eta, r, u_prev))
+            sol = backend.solve(*backend.vectors(qp.step_data(dx0, eta, r, u_prev, u_base)))
         elif (r == r[0]).all():
-            sol = self._backend.solve(*qp.constant_r_vectors(dx0, eta, r[0], u_prev))
+            sol = backend.solve(*backend.vectors(qp.step_data(dx0, eta, r[0], u_prev, u_base)))
         else:
-            sol = self._backend.solve(*qp.qp_vectors(dx0, eta, r, u_prev))
-        solved_by: SolvedBy = self._backend.name
+            sol = backend.solve(*qp.qp_vectors(dx0, eta, r, u_prev))
+        solved_by: SolvedBy = backend.name
         if sol.x is not None and np.isfinite(sol.x).all():
             plan = qp.plan_of(sol.x)
             if sol.accurate:
@@ -308,7 +356,7 @@ class MpcController:
                 plan = np.vstack([self._plan[1:], self._plan[-1:]])
             else:
                 plan = np.tile(u_prev, (self._N, 1))  # nothing safe to shift yet: hold u(-1)
-        plan = self.project(plan, u_prev)
+        plan = self._project(plan, u_base)
         if status != MpcStatus.HELD or self._plan is not None:
             self._plan = plan  # the last safe plan (a held u(-1) is not one)
         z_pred = qp.predict_z(dx0, eta, plan)
@@ -330,7 +378,7 @@ class MpcController:
         this step's own arrays, handed out read-only; r and u(-1) are the caller's, so copied
         (the cost is evaluated from them when first read)."""
         planned = readonly(plan)
-        return MpcResult(
+        return MpcResult.of_step(
             u=planned[0],
             status=status,
             osqp_status=sol.status,
@@ -359,24 +407,19 @@ class MpcController:
         errors, so the sequential pass (in Python floats: a few dozen numbers) starts at the first
         move that breaks one, and skips ahead again after a move it leaves unchanged.
         """
+        return self._project(plan, self._qp.rate_window_base(u_prev.tolist()))
+
+    def _project(self, plan: FloatArray, u_base: list[float]) -> FloatArray:
+        """:meth:`project` with u(-1) already clipped to its window (``QpFormulation.rate_window_base``)."""
         qp = self._qp
-        umin, umax = qp.u_min, qp.u_max
-        out = np.minimum(np.maximum(plan, umin), umax)  # np.clip's result, less call overhead
+        out = np.minimum(np.maximum(plan, qp.u_min), qp.u_max)  # np.clip's result, less call overhead
         if qp.has_rate_rows:
             if self._config.first_move_rate_limited:
-                out[0] = self._first_move(out[0].tolist(), u_prev.tolist())
+                out[0] = self._clamp_move(out[0].tolist(), u_base)
             first = self._first_broken(out)
             if first:
                 out = self._project_moves(out, first)
         return out
-
-    def _first_move(self, u0: list[float], u_prev: list[float]) -> list[float]:
-        """u0 clipped to the rate window of u(-1), itself first clipped to where that window
-        meets the input box (u0 already in the box; m numbers, in Python floats)."""
-        qp = self._qp
-        lo_prev, hi_prev = qp.u_prev_min_list, qp.u_prev_max_list
-        base = [min(max(v, lo_prev[j]), hi_prev[j]) for j, v in enumerate(u_prev)]
-        return self._clamp_move(u0, base)
 
     def _first_broken(self, plan: FloatArray) -> int:
         """Index of the first move of ``plan`` (rows of moves, the first one excluded) that breaks
@@ -387,8 +430,11 @@ class MpcController:
             broken = np.abs(d) > qp.du_max
         else:
             broken = (d < qp.du_min) | (d > qp.du_max)
-        rows = broken.any(axis=1)
-        return int(rows.argmax()) + 1 if rows.any() else 0
+        flat = broken.reshape(-1)  # row-major: the first True is in the first broken move
+        if not flat.size:
+            return 0
+        i = int(flat.argmax())
+        return i // self._m + 1 if flat[i] else 0
 
     def _project_moves(self, plan: FloatArray, first: int) -> FloatArray:
         """Clip moves ``first``..Np-1 in turn to the rate window of the move before. A move the
@@ -471,6 +517,8 @@ class MpcController:
             (old_u_op - new_model.u_op) / qp.su, self._N
         )
         self._backend.update_matrices(P, Aqp, x_offset)
+        self._backend.set_vector_map(qp.vector_map)
+        self._set_correct_map()
 
     # ------------------------------------------------------------------------------------------
     # properties

@@ -277,6 +277,7 @@ class QpFormulation:
         )
         self.set_vector_bases()
         self.set_vector_map()
+        self.set_prediction_map()
 
     def layout(self) -> None:
         """Offsets of the variable and constraint blocks, and the warm-start shift indices."""
@@ -497,19 +498,33 @@ class QpFormulation:
         physical bounds win)."""
         return np.minimum(np.maximum(up_t, self.umin_t - self.dmax_t), self.umax_t - self.dmin_t)
 
+    def step_data(
+        self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray, u_base: list[float]
+    ) -> FloatArray:
+        """th = [dx0, eta, r, u(-1), u(-1) clipped, 1], the step's data for a constant reference
+        r (nz,): the QP's vectors are [q; l; u] = ``vector_map`` th (equal to :meth:`qp_vectors`
+        to rounding; the vectors are affine in th, :meth:`set_vector_map`). ``u_base`` is u(-1)
+        [m^3/s] clipped to [u_min - du_max, u_max - du_min] (:meth:`rate_window_base`)."""
+        return np.concatenate((dx0, eta, r, u_prev, u_base, _ONE))
+
+    def rate_window_base(self, u_prev: list[float]) -> list[float]:
+        """u(-1) [m^3/s] clipped so that its rate window [u(-1) + du_min, u(-1) + du_max] meets
+        [u_min, u_max] (the physical bounds win), in Python floats (m numbers): the base of the
+        first rate row and of the projection's first move."""
+        bounds = zip(u_prev, self.u_prev_min_list, self.u_prev_max_list, strict=True)
+        return [min(max(v, lo), hi) for v, lo, hi in bounds]
+
     def constant_r_vectors(
         self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """:meth:`qp_vectors` for a constant reference r (nz,) as one product with the affine map
-        of the step's data th = [dx0, eta, r, u(-1), u~(-1) clipped, 1] (equal to rounding; the
-        vectors are affine in th, :meth:`set_vector_map`)."""
-        up_t = (u_prev - self.model.u_op) / self.su
-        out = self.vector_map @ np.concatenate((dx0, eta, r, u_prev, self._rate_base(up_t), _ONE))
+        """:meth:`qp_vectors` for a constant reference r (nz,) as one product (:meth:`step_data`)."""
+        th = self.step_data(dx0, eta, r, u_prev, self.rate_window_base(u_prev.tolist()))
+        out = self.vector_map @ th
         nv, nc = self.nv, self.nc
         return out[:nv], out[nv : nv + nc], out[nv + nc :]
 
     def set_vector_map(self) -> None:
-        """The affine map [q; l; u] = M th of :meth:`constant_r_vectors`, from :meth:`_vectors`
+        """The affine map [q; l; u] = M th of :meth:`step_data`, from :meth:`_vectors`
         at a base point and one step per entry of th of the size of its range (so that the
         differences carry no cancellation); rows infinite at the base are constant (+-inf)."""
         n, ne, nz, m = self.n, self.n_eta, self.nz, self.m
@@ -522,16 +537,17 @@ class QpFormulation:
                 np.zeros(ne),
                 self.z_op,
                 u_mid,
-                self._rate_base((u_mid - self.model.u_op) / self.su),
+                self.rate_window_base(u_mid.tolist()),
             ]
         )
-        steps = np.concatenate([self.sx, eta_step, self.sz, 0.25 * self.su, np.full(m, 0.25)])
+        steps = np.concatenate([self.sx, eta_step, self.sz, 0.25 * self.su, 0.25 * self.su])
         cut = np.cumsum([n, ne, nz, m])
 
         def vectors(th: FloatArray) -> FloatArray:
-            dx0, eta, r, u_prev, up_eff = np.split(th, cut)
+            dx0, eta, r, u_prev, u_base = np.split(th, cut)
             r_abs = np.broadcast_to(r, (self.N, nz))
             up_t = (u_prev - self.model.u_op) / self.su
+            up_eff = (u_base - self.model.u_op) / self.su
             return np.concatenate(self._vectors(dx0, eta, r_abs, up_t, up_eff))
 
         f0 = vectors(base)
@@ -591,10 +607,24 @@ class QpFormulation:
         u_t = v[self.u_off : self.u_off + self.N * self.m].reshape(self.N, self.m)
         return self.model.u_op + u_t * self.su
 
+    def set_prediction_map(self) -> None:
+        """The map of :meth:`predict_z` in SI units: z(1..Np) stacked = z_op (tiled) + Dz_N (Zx dx0
+        + Zeta eta + Gam_z Du_N^-1 (U - u_op)), Dz_N = I_N (x) diag(s_z), Du_N = I_N (x) diag(s_u),
+        as one matrix on [dx0; eta; U - u_op]."""
+        N = self.N
+        sz_N = np.tile(self.sz, N)[:, None]
+        self.z_map = np.ascontiguousarray(
+            np.hstack([sz_N * self.Zx, sz_N * self.Zeta, sz_N * self.Gam_z / np.tile(self.su, N)[None, :]])
+        )
+        self.z_op_N = np.tile(self.z_op, N)
+
     def predict_z(self, dx0: FloatArray, eta: FloatArray, plan: FloatArray) -> FloatArray:
-        """z(1..Np) [m] of the linear model for the plan (exact prediction, any formulation)."""
-        u_t = ((plan - self.model.u_op) / self.su).reshape(-1)
-        return self.z_op + self.scaled_z(dx0, eta, u_t).reshape(self.N, self.nz) * self.sz
+        """z(1..Np) [m] of the linear model for the plan (exact prediction, any formulation; one
+        product, :meth:`set_prediction_map`)."""
+        zin = np.concatenate((dx0, eta, (plan - self.model.u_op).reshape(-1)))
+        z = self.z_map @ zin
+        z += self.z_op_N
+        return z.reshape(self.N, self.nz)
 
     def scaled_z(self, dx0: FloatArray, eta: FloatArray, u_t: FloatArray) -> FloatArray:
         """z~(1..Np) stacked, of dx0 [m], eta and U~ (vectors, or matrices column by column)."""

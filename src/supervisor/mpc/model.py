@@ -10,9 +10,9 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from functools import cached_property
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -97,7 +97,9 @@ def sqrt_psd(W: FloatArray) -> FloatArray:
 
 
 def readonly(a: FloatArray) -> FloatArray:
-    a.flags.writeable = False
+    """``a`` made read-only (``setflags``: a fifth of the cost of ``a.flags.writeable = False``,
+    which builds a flags object first; measured 0.2 against 1.7 us)."""
+    a.setflags(write=False)
     return a
 
 
@@ -362,6 +364,20 @@ class MpcResult:
     reference: FloatArray | None = field(default=None, repr=False, compare=False)
     u_prev: FloatArray | None = field(default=None, repr=False, compare=False)
 
+    @classmethod
+    def of_step(cls, **values: Any) -> MpcResult:
+        """The result of a step from every field's value, made by the controller (which has just
+        made or checked them): the instance's dict is filled directly. The frozen dataclass's
+        ``__init__`` sets each of the 16 fields through ``object.__setattr__``, about 10x the cost
+        (12-15 us against 1-2.5 us on the loaded benchmark machine, ~10 % of a whole Np = 40
+        step); the result is the same object (equal, frozen, ``objective`` evaluated when read;
+        a test checks it against ``MpcResult(**values)``)."""
+        if values.keys() != _RESULT_FIELDS:
+            raise TypeError(f"MpcResult.of_step needs exactly the fields {sorted(_RESULT_FIELDS)}")
+        obj = object.__new__(cls)
+        obj.__dict__.update(values)
+        return obj
+
     @cached_property
     def _cost_and_violation(self) -> tuple[float, float]:
         """(objective, max_output_violation), evaluated once on first read: the control loop
@@ -380,3 +396,6 @@ class MpcResult:
     def max_output_violation(self) -> float:
         """Largest predicted output-bound violation [m] (class docstring)."""
         return self._cost_and_violation[1]
+
+
+_RESULT_FIELDS = frozenset(f.name for f in fields(MpcResult))
