@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import shutil
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ import pytest
 from asyncua import Client, ua
 
 from helpers import ROOT, free_port, wait_until
+from node_client import NODE, NODE_DIR, run_node_script
 from plant_sim.runtime import run_plant
 from tanklab.config import load_site
 from tanklab_io.home import SecurityHome
@@ -35,8 +35,6 @@ from tanklab_io.ua_client import resolve
 from tanklab_io.ua_security import ClientIdentity, ServerSecurity, secure_client
 from tanklab_io.users import Credentials
 
-NODE = shutil.which("node")
-NODE_DIR = ROOT / "tests" / "node"
 SCRIPT = NODE_DIR / "read.mjs"
 USER, PASSWORD = "alice", "alice-node-opcua-password"
 OPENING = 0.37
@@ -80,30 +78,7 @@ async def _tankctl(home: Path, *args: str, stdin: str | None = None) -> str:
 
 async def _node_read(url: str, pki_dir: Path, path: str) -> dict[str, Any]:
     """Run the node-opcua client once: its JSON result line plus ``rc`` (its exit code)."""
-    assert NODE is not None
-    proc = await asyncio.create_subprocess_exec(
-        NODE,
-        str(SCRIPT),
-        url,
-        str(pki_dir),
-        USER,
-        path,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-        cwd=NODE_DIR,
-        env=dict(os.environ, TANKLAB_PASSWORD=PASSWORD),
-    )
-    try:
-        out, err = await asyncio.wait_for(proc.communicate(), 120)
-    finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
-    lines = [ln for ln in out.decode().splitlines() if ln.startswith("RESULT ")]
-    assert len(lines) == 1, f"node read.mjs: no result line (exit {proc.returncode}): {err.decode()[-2000:]}"
-    result: dict[str, Any] = json.loads(lines[0].removeprefix("RESULT "))
-    result["rc"] = proc.returncode
-    return result
+    return await run_node_script(SCRIPT.name, url, str(pki_dir), USER, path, password=PASSWORD)
 
 
 @pytest.fixture

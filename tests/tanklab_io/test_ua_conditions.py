@@ -16,10 +16,7 @@ condition DISABLED, shelving past the maximum SHELVING_TIME_OUT_OF_RANGE, ...): 
 
 from __future__ import annotations
 
-import asyncio
 import itertools
-import json
-import os
 import shutil
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, replace
@@ -31,6 +28,7 @@ import pytest
 from asyncua import Client, ua
 
 from helpers import ROOT, free_port, secure, server_security, session_home, wait_until
+from node_client import NODE, NODE_DIR, run_node_script
 from tanklab import paths
 from tanklab.alarms.model import (
     AlarmDefinition,
@@ -692,39 +690,10 @@ async def test_of_type_on_a_base_type_receives_subtype_events(rig: Rig) -> None:
         assert modified.values("EventId") == [trip.event_id]
 
 
-NODE = shutil.which("node")
-NODE_DIR = ROOT / "tests" / "node"
-
-
 async def _node_alarms(url: str, pki_dir: Path, user: str, condition: str) -> dict[str, Any]:
     """Run tests/node/alarms.mjs once: its JSON result line plus ``rc`` (its exit code)."""
-    assert NODE is not None
     password = f"{user}-test-password"  # helpers.TEST_PASSWORDS
-    proc = await asyncio.create_subprocess_exec(
-        NODE,
-        str(NODE_DIR / "alarms.mjs"),
-        url,
-        str(pki_dir),
-        user,
-        condition,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-        cwd=NODE_DIR,
-        env=dict(os.environ, TANKLAB_PASSWORD=password),
-    )
-    try:
-        out, err = await asyncio.wait_for(proc.communicate(), 120)
-    finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
-    lines = [ln for ln in out.decode().splitlines() if ln.startswith("RESULT ")]
-    assert len(lines) == 1, (
-        f"node alarms.mjs: no result line (exit {proc.returncode}): {err.decode()[-2000:]}"
-    )
-    result: dict[str, Any] = json.loads(lines[0].removeprefix("RESULT "))
-    result["rc"] = proc.returncode
-    return result
+    return await run_node_script("alarms.mjs", url, str(pki_dir), user, condition, password=password)
 
 
 @pytest.mark.skipif(NODE is None, reason="node is not installed (node-opcua needs node 20+ and `make tools`)")
