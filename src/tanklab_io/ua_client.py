@@ -88,7 +88,26 @@ def new_client(url: str, timeout_s: float) -> Client:
     their own requests (each waits ``timeout_s``).
     """
     half_session_s = max(timeout_s, SESSION_TIMEOUT_MS / 1000.0 / 2.0)
-    return Client(url, timeout=timeout_s, watchdog_intervall=half_session_s)
+    client = Client(url, timeout=timeout_s, watchdog_intervall=half_session_s)
+    client.connection_lost_callback = _lost_logger(url)
+    return client
+
+
+def _lost_logger(url: str) -> Callable[[Exception], Awaitable[None]]:
+    """asyncua's ``connection_lost_callback`` for a client of ``url``: one warning saying which
+    side ended the connection (asyncua's own line is INFO, below what a tier logs).
+
+    asyncua's supervisor calls it when the socket closed under the client (the server or the
+    network ended it: ``ConnectionError('transport lost')``; requests in flight then fail with
+    "Connection is closed") or when its keep-alive probe failed (the client gives up on a server
+    that did not answer in time; requests then fail with "client is disconnected").
+    """
+
+    async def lost(e: Exception) -> None:
+        side = "the socket closed" if isinstance(e, ConnectionError) else "the keep-alive probe failed"
+        log.warning("client of %s: connection lost, %s (%s)", url, side, describe_error(e))
+
+    return lost
 
 
 BACKOFF_BASE_S = 0.2

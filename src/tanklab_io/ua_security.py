@@ -26,9 +26,11 @@ Server side (:func:`secure_server`)
       goes to the tier's :class:`~tanklab_io.audit.AuditLog` and is raised as a
       ``TanklabAuditEventType`` event on the Server object.
     * Limits (:data:`LIMITS`): 64 KiB chunks, at most 4 per message (256 KiB), 16 queued
-      messages per connection, 256 connections, 2 s to finish the handshake (Hello through
-      ActivateSession), sessions of at most 30 s timeout, publishing intervals of at least
-      100 ms; a chunk header announcing more than the chunk limit closes the connection at once.
+      messages per connection, 256 connections, 2 s to send a first message while more than 32
+      connections have no activated session (parked sockets are closed then) and 30 s to finish
+      the handshake (through ActivateSession) in any case, sessions of at most 30 s timeout,
+      publishing intervals of at least 100 ms; a chunk header announcing more than the chunk
+      limit closes the connection at once.
 
 Client side (:func:`secure_client`)
     A tier (PLC to plant, supervisor to PLC) connects with its own certificate on the channel
@@ -114,6 +116,18 @@ class Limits:
     max_pending_messages: int = 16
     max_connections: int = 256
     handshake_s: float = 2.0
+    """A connection that has sent no complete message this long after TCP accept, while more
+    than ``crowd`` connections are without an activated session, is parked and closed [wall s]."""
+    crowd: int = 32
+    """Connections without an activated session beyond which silent ones are closed at
+    ``handshake_s`` (a dozen concurrent logins is a busy operator station, 200 is an attack)."""
+    activation_s: float = 30.0
+    """Any connection without an activated session this long after TCP accept is closed
+    [wall s]: a hang bound, not a speed bound. A legitimate login (Hello, an RSA
+    OpenSecureChannel, CreateSession, ActivateSession with one scrypt in a worker thread) is a
+    few hundred ms on an idle machine and took over 2 s on a loaded two-core one, even to its
+    Hello (the client's loop busy with its other logins' RSA), where asyncua's single 2 s
+    watchdog closed it mid-handshake (issue #21: fuzz and flood sessions lost)."""
     max_session_timeout_ms: float = 30_000.0
     min_publishing_interval_ms: float = 100.0
     max_failed_logins: int = 10
@@ -396,6 +410,10 @@ class _Protocol(OPCUAProtocol):
     """One connection: tanklab's processor, and chunk headers checked before buffering."""
 
     audit: AuditLog | None = None
+    activation_s: float = LIMITS.activation_s
+    crowd: int = LIMITS.crowd
+    spoke = False
+    """Whether a complete message has arrived (the connection is not parked)."""
 
     def connection_made(self, transport: Any) -> None:
         super().connection_made(transport)
@@ -414,11 +432,53 @@ class _Protocol(OPCUAProtocol):
                 if self.transport is not None:
                     self.transport.close()
                 return
+        pending = len(self._buffer) + len(data)
         super().data_received(data)
+        if len(self._buffer) < pending:  # a complete message was taken off the buffer
+            self.spoke = True
+
+    async def _activation_watchdog(self) -> None:
+        """Close a parked connection (no complete message ``handshake_s`` after TCP accept while
+        more than ``crowd`` connections are unactivated) and any connection whose handshake
+        never finishes (no activated session ``activation_s`` after accept).
+
+        Replaces asyncua's single bound (``max_pending_activation_seconds`` from accept to
+        ActivateSession, for every connection), which on a loaded machine closed legitimate
+        logins mid-handshake: the handshake is RSA and scrypt work on both sides, its wall time
+        is the machine's speed, not the client's intent. Parked sockets still go after
+        ``handshake_s`` when they crowd the server (the only harm they do is taking slots).
+        """
+        try:
+            first = self.iserver.max_pending_activation_seconds
+            await asyncio.sleep(first)
+            if not self.spoke and self._unactivated() > self.crowd:
+                self._close_unactivated(f"no message within {first:.1f} s, {self.crowd}+ connections waiting")
+                return
+            await asyncio.sleep(max(0.0, self.activation_s - first))
+            self._close_unactivated(f"no activated session within {self.activation_s:.1f} s")
+        except asyncio.CancelledError:
+            pass
+
+    def _activated(self) -> bool:
+        session = self.processor.session if self.processor is not None else None
+        return session is not None and session.is_activated()
+
+    def _unactivated(self) -> int:
+        """Connections of this server without an activated session (this one included)."""
+        return sum(1 for c in self.clients if not (isinstance(c, _Protocol) and c._activated()))
+
+    def _close_unactivated(self, why: str) -> None:
+        if self._activated():
+            return
+        log.warning("closing connection from %s: %s", self.peer_name, why)
+        if self.transport is not None:
+            self.transport.close()
 
 
 class _BinaryServer(BinaryServer):
     audit: AuditLog | None = None
+    activation_s: float = LIMITS.activation_s
+    crowd: int = LIMITS.crowd
 
     def _make_protocol(self) -> OPCUAProtocol:
         protocol = _Protocol(
@@ -429,6 +489,8 @@ class _BinaryServer(BinaryServer):
             limits=self.limits,
         )
         protocol.audit = self.audit
+        protocol.activation_s = self.activation_s
+        protocol.crowd = self.crowd
         return protocol
 
 
@@ -437,6 +499,10 @@ class TanklabServer(Server):
 
     audit: AuditLog | None = None
     audit_events: AuditEvents | None = None
+    activation_s: float = LIMITS.activation_s
+    """Bound from TCP accept to an activated session [wall s] (:attr:`Limits.activation_s`)."""
+    crowd: int = LIMITS.crowd
+    """Unactivated connections beyond which silent ones are closed early (:attr:`Limits.crowd`)."""
 
     async def start(self) -> None:
         """Set up the endpoints and listen (asyncua's start, with tanklab's transport)."""
@@ -446,6 +512,8 @@ class TanklabServer(Server):
             host, port = self._get_bind_socket_info()
             self.bserver = _BinaryServer(self.iserver, host, port, self.limits)
             self.bserver.audit = self.audit
+            self.bserver.activation_s = self.activation_s
+            self.bserver.crowd = self.crowd
             self.bserver.set_policies(self._policies)
             await self.bserver.start()
         except Exception:
@@ -575,6 +643,8 @@ async def secure_server(
     iserver = server.iserver
     iserver.max_connections = limits.max_connections
     iserver.max_pending_activation_seconds = limits.handshake_s
+    server.activation_s = limits.activation_s
+    server.crowd = limits.crowd
     iserver.max_pending_messages_per_connection = limits.max_pending_messages
     iserver.max_session_timeout_ms = limits.max_session_timeout_ms
     server.audit = audit

@@ -254,3 +254,28 @@ async def test_a_recovered_link_resets_its_backoff_and_a_lost_one_retries_at_onc
     assert not await link.ensure()
     assert link.attempts == 1 and link.retry_delay_s == pytest.approx(0.15)
     await link.close()
+
+
+async def test_a_client_says_which_side_ended_its_connection(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.WARNING, "tanklab_io.ua_client")
+    port = free_port()
+    url = f"opc.tcp://127.0.0.1:{port}/tanklab/plant"
+    link = _link(url, VirtualClock())
+    stop, ready = asyncio.Event(), asyncio.Event()
+    task = asyncio.create_task(
+        run_plant(
+            SITE, host="127.0.0.1", port=port, security=server_security(), speed=1.0, stop=stop, ready=ready
+        )
+    )
+    try:
+        await wait_until(ready.is_set, 20, what="plant server ready")
+        assert await link.ensure()
+    finally:
+        stop.set()
+        await asyncio.wait_for(task, 20)
+
+    def said() -> bool:
+        return any("connection lost, the socket closed" in r.getMessage() for r in caplog.records)
+
+    await wait_until(said, 20, what="the client's connection-lost warning")
+    await link.close()
