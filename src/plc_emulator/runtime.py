@@ -222,7 +222,7 @@ async def run_plc(
         watchdog_timeout_s=timeout if lockstep else max(timeout, WALL_FLOOR_S * speed),
         alarm_event_prefix=os.urandom(8),  # EventIds unique across restarts of the process
     )
-    server = PlcServer(site, program, host, port, security)
+    server = PlcServer(site, program, host, port, security, speed=1.0 if lockstep else speed)
     ack = asyncio.Event()
     seen = asyncio.Event()  # the supervisor has written a heartbeat at least once
 
@@ -295,6 +295,8 @@ async def run_plc(
                 readings = FieldReadings(np.full(n, np.nan), np.zeros(n, dtype=bool))
             ack.clear()
             out = program.scan(ScanInputs(t_model, readings.levels_m, readings.good, healthy))
+            if program.alarms.events:  # before any await: the core's order reaches the nodes
+                await server.publish_alarms(program.alarms.events)
             status = out.status
             assert status is not None  # scan() publishes by default
             # The scan's row is taken now: a supervisor write may land during the field I/O below.

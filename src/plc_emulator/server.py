@@ -17,6 +17,16 @@ without PID gains); ``LIC{j}.ReleaseGains()`` hands an ENGINEER loop back (sourc
 kept). Role checks and the audit record of every call are the method adapter's
 (:mod:`tanklab_io.ua`). ``Interlock.Reset()`` resets the latched trips whose level is low enough.
 
+The PLC's alarms are OPC UA conditions (:class:`tanklab_io.conditions.UaConditions`, installed
+at :meth:`PlcServer.start` from the program's alarm manager; docs/alarms.md section 7): the
+runtime publishes each scan's alarm events with :meth:`PlcServer.publish_alarms`, and a client's
+Acknowledge, Confirm, AddComment, Enable, Disable or shelving call is answered by
+``manager.call(call, program.t_s)``. Scans and calls are serialised by the one asyncio loop the
+scan and the server share: ``program.scan`` and ``manager.call`` are synchronous, so a call runs
+wholly before or after a scan, at the model time of the last scan; the events reach the nodes in
+the core's order (the projection publishes one batch at a time, and the runtime asks for the
+scan's batch before its first await after the scan).
+
 The program reports its state as a value (:class:`plc_emulator.status.PlcStatus`);
 :func:`plc_emulator.publish.status_values` maps it to the contract's paths, and
 :meth:`PlcServer.publish_status` publishes it.
@@ -25,7 +35,8 @@ The program reports its state as a value (:class:`plc_emulator.status.PlcStatus`
 from __future__ import annotations
 
 import logging
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from asyncua import ua
@@ -35,10 +46,12 @@ from plc_emulator.publish import status_values
 from plc_emulator.status import PlcStatus
 from plc_emulator.writes import ProgramWrite, program_writes
 from tanklab import paths
+from tanklab.alarms import CallStatus, ConditionCall, ConditionEvent
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource
 from tanklab.handlers import HandlerTable
 from tanklab.tags import HEARTBEAT_PATH, Role, Tag, plc_tags, tags_by_path
+from tanklab_io.conditions import UaConditions
 from tanklab_io.ua import CURRENT_USER, MethodHandler, Publisher, TankUser, WriteHandler
 from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
@@ -51,11 +64,47 @@ _STATUS = {
 }
 
 
+class ModelUtc:
+    """Model time [s] -> UTC, as the PLC's SourceTimestamps are: the wall clock of the scan.
+
+    The PLC stamps every value it publishes with the server's clock when the scan publishes it
+    (:class:`tanklab_io.ua.Publisher`); an alarm event's Time (the core's model time) is mapped
+    the same way. :meth:`anchor` ties model time ``t_s`` to the UTC now (the runtime calls it
+    when it publishes a scan's alarm events, so their Time is that scan's stamp); other model
+    times are the anchor's, moved by the model-time difference over ``speed`` (real time: ``speed``
+    model seconds per wall second; in lock-step only a scan's own events are exact).
+    """
+
+    def __init__(self, speed: float = 1.0) -> None:
+        if not speed > 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.speed = speed
+        self._t_s = 0.0
+        self._utc = datetime.now(UTC)
+
+    def anchor(self, t_s: float, utc: datetime | None = None) -> None:
+        """Model time ``t_s`` [s] is ``utc`` (default: now)."""
+        self._t_s, self._utc = t_s, utc or datetime.now(UTC)
+
+    def __call__(self, t_s: float) -> datetime:
+        return self._utc + timedelta(seconds=(t_s - self._t_s) / self.speed)
+
+
 class PlcServer:
-    """Serves a :class:`PlcProgram` at ``opc.tcp://HOST:PORT/tanklab/plc``."""
+    """Serves a :class:`PlcProgram` at ``opc.tcp://HOST:PORT/tanklab/plc``.
+
+    ``speed``: model seconds per wall second (how alarm events' model time maps to UTC).
+    """
 
     def __init__(
-        self, site: SiteConfig, program: PlcProgram, host: str, port: int, security: ServerSecurity
+        self,
+        site: SiteConfig,
+        program: PlcProgram,
+        host: str,
+        port: int,
+        security: ServerSecurity,
+        *,
+        speed: float = 1.0,
     ) -> None:
         self.site = site
         self.program = program
@@ -65,6 +114,8 @@ class PlcServer:
         self.security = security
         self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
+        self.conditions: UaConditions | None = None
+        self.to_utc = ModelUtc(speed)
         self.on_heartbeat: Callable[[], None] | None = None
         self.on_change: Callable[[], None] | None = None
         """Called after every applied write and accepted call but the heartbeat (the runtime
@@ -82,11 +133,46 @@ class PlcServer:
             methods=self.method_handlers(),
         )
         self.publisher = self.tier.publisher
+        await self._install_conditions()
         static: dict[str, Any] = {
             paths.plc.loop(lp.spec.name).block: lp.spec.block for lp in self.program.loops
         }
         await self.publish_status(self.program.status(), static)
         log.info("PLC server listening at %s", self.url)
+
+    async def _install_conditions(self) -> None:
+        """The alarm manager's conditions on the server; after a warm restart each restored
+        retained condition is announced once (:meth:`AlarmManager.restart_events`), so its
+        nodes show the restored state and a client can acknowledge it."""
+        assert self.tier is not None
+        manager = self.program.alarms.manager
+        self.to_utc.anchor(self.program.t_s)
+        self.conditions = await UaConditions.install(
+            self.tier.server,
+            "plc",
+            manager.definitions,
+            handler=self._alarm_call,
+            retained=manager.retained,
+            to_utc=self.to_utc,
+            audit=self.tier.audit,
+            max_time_shelved_s=manager.max_shelving_time_s,  # the core's own limit
+        )
+        await self.conditions.publish(manager.restart_events(self.program.t_s))
+
+    def _alarm_call(self, call: ConditionCall) -> tuple[CallStatus, Sequence[ConditionEvent]]:
+        """A client's condition call, answered by the core at the last scan's model time (the
+        retentive memory is stored when the call changed a condition)."""
+        status, events = self.program.alarms.manager.call(call, self.program.t_s)
+        if events:
+            self._changed()
+        return status, events
+
+    async def publish_alarms(self, events: Sequence[ConditionEvent]) -> None:
+        """Raise a scan's alarm events (call only with some: the usual scan has none) and
+        anchor their model time to now."""
+        assert self.conditions is not None
+        self.to_utc.anchor(self.program.t_s)
+        await self.conditions.publish(events)
 
     async def stop(self) -> None:
         if self.tier is not None:

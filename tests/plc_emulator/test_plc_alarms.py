@@ -4,12 +4,15 @@ the interlock, acknowledge through the manager, the warm restart of their state.
 from __future__ import annotations
 
 import json
+from datetime import UTC, datetime, timedelta
 
 import numpy as np
+import pytest
 
 from helpers import ROOT
 from plc_emulator.program import PlcProgram, ScanInputs
 from plc_emulator.publish import status_values
+from plc_emulator.server import ModelUtc
 from tanklab import paths
 from tanklab.alarms import CallStatus, ConditionCall, Method
 from tanklab.config import load_site
@@ -62,3 +65,16 @@ def test_alarm_state_survives_a_warm_restart() -> None:
     bad = a.retained()
     bad["alarms"] = ["not", "a", "mapping"]
     assert PlcProgram(SITE).restore_retained(bad) == ["alarms: not a mapping"]
+
+
+def test_model_utc_maps_model_time_to_the_anchored_scan_stamp_over_the_speed() -> None:
+    stamp = datetime(2026, 1, 1, tzinfo=UTC)
+    to_utc = ModelUtc(speed=20.0)
+    to_utc.anchor(100.0, stamp)
+    assert to_utc(100.0) == stamp
+    assert to_utc(140.0) == stamp + timedelta(seconds=2.0)  # 40 model s at 20x: 2 wall s
+    assert to_utc(80.0) == stamp - timedelta(seconds=1.0)
+    to_utc.anchor(200.0, stamp + timedelta(seconds=3.0))  # the next scan batch re-anchors
+    assert to_utc(200.0) == stamp + timedelta(seconds=3.0)
+    with pytest.raises(ValueError, match="speed"):
+        ModelUtc(speed=0.0)

@@ -317,6 +317,11 @@ class Condition:
         self.shelved_until_s = shelved_until_s if shelving is not ShelvingState.UNSHELVED else math.inf
         self.severity = self.last_severity = self._severity_of(state)
 
+    def restored_event(self, t_s: float) -> list[ConditionEvent]:
+        """The event that re-announces a restored condition at model time ``t_s`` [s]
+        (:meth:`AlarmManager.restart_events`)."""
+        return self._event("restored at warm restart", t_s)
+
     # ---- calls ---------------------------------------------------------------------------
 
     def call(self, call: ConditionCall, t_s: float) -> tuple[CallStatus, list[ConditionEvent]]:

@@ -364,6 +364,18 @@ class AlarmManager:
             return CallStatus.UNKNOWN_CONDITION, []
         return cond.call(call, t_s)
 
+    def restart_events(self, t_s: float) -> list[ConditionEvent]:
+        """After a warm restart (:meth:`from_retain`), one event per retained condition at model
+        time ``t_s`` [s] ("restored at warm restart"): it gives the condition a fresh EventId of
+        this process, so a client can acknowledge or confirm it and ConditionRefresh reports it
+        (a restored condition has no event of its own otherwise). Its Time is ``t_s``: the
+        retentive memory does not keep when the alarm started."""
+        events: list[ConditionEvent] = []
+        for c in self._conditions.values():
+            if c.retain and c.latest is None:
+                events += c.restored_event(t_s)
+        return events
+
     # ---- views ---------------------------------------------------------------------------
 
     def snapshots(self) -> tuple[ConditionSnapshot, ...]:

@@ -23,6 +23,7 @@ server: the type methods' callbacks are the server's.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -218,6 +219,7 @@ class UaConditions:
             self._by_object[node.condition_id] = name
             self._by_object[node.shelving_id] = name
         self._latest: dict[str, ConditionEvent] = {}
+        self._publishing = asyncio.Lock()
         self.published = 0
 
     @classmethod
@@ -293,7 +295,18 @@ class UaConditions:
     async def publish(self, events: Sequence[ConditionEvent]) -> None:
         """Store each event's snapshot in its condition's nodes and raise it on the condition's
         notifier chain (an event of a condition this projection does not have is logged and
-        skipped)."""
+        skipped).
+
+        Publications run one after the other, in the order they were asked for (a FIFO lock):
+        a tier that calls this right after its core made the events, with no await in between,
+        gets its events into the nodes in the core's order, even if a client's call comes in
+        while an earlier publication waits on the network."""
+        if not events:
+            return
+        async with self._publishing:
+            await self._publish(events)
+
+    async def _publish(self, events: Sequence[ConditionEvent]) -> None:
         for ev in events:
             node = self.nodes.get(ev.condition.name)
             if node is None:

@@ -336,6 +336,23 @@ def test_retain_round_trip_through_json() -> None:
     assert n.condition("T1Level").comment == "seen"
 
 
+def test_restart_events_give_restored_retained_conditions_an_acknowledgeable_event_id() -> None:
+    m = manager()
+    m.scan({"T1Level": AlarmInput(0.9), "T1Trip": AlarmInput(True)}, 0.0)
+    n = manager()
+    assert n.from_retain(json.loads(json.dumps(m.to_retain()))) == []
+    assert n.retained() == ()  # restored, but no event of this process yet
+    events = n.restart_events(7.0)
+    assert [e.condition.name for e in events] == ["T1Level", "T1Trip"]
+    assert reasons(events) == ["restored at warm restart"] * 2
+    assert all(e.t_s == 7.0 and e.condition.active and not e.condition.acked for e in events)
+    assert [e.event_id for e in n.retained()] == [e.event_id for e in events]
+    assert n.restart_events(8.0) == []  # once
+    lvl = n.condition("T1Level")
+    status, _ = n.call(ConditionCall("T1Level", Method.ACKNOWLEDGE, "op", events[0].event_id, ""), 9.0)
+    assert status is CallStatus.GOOD and lvl.acked
+
+
 def test_retain_refuses_bad_entries_whole() -> None:
     m = manager()
     good = m.to_retain()["conditions"]
