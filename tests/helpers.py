@@ -80,9 +80,10 @@ def engineer_logins() -> Logins:
     return Logins(session_home(), {"engineer": Credentials("engineer", TEST_PASSWORDS["engineer"])})
 
 
-def server_security() -> ServerSecurity:
-    """What an in-process tier server of a test is secured with."""
-    return ServerSecurity(session_home())
+def server_security(audit_dir: Path | None = None) -> ServerSecurity:
+    """What an in-process tier server of a test is secured with; ``audit_dir`` gives it an audit
+    log of its own (None: the session home's, which every test of the session writes to)."""
+    return ServerSecurity(session_home(), audit_dir)
 
 
 def identity(

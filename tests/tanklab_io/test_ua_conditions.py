@@ -260,7 +260,7 @@ class Rig:
 
 
 @pytest.fixture
-async def rig() -> AsyncIterator[Rig]:
+async def rig(tmp_path: Path) -> AsyncIterator[Rig]:
     tags = plc_tags(SITE)
     methods: dict[str, MethodHandler] = {t.path: _nothing for t in tags if t.kind == "method"}
     writes: dict[str, WriteHandler] = {t.path: _accept for t in tags if t.kind == "variable" and t.writable}
@@ -269,7 +269,7 @@ async def rig() -> AsyncIterator[Rig]:
         "plc",
         url=url,
         name="conditions test",
-        security=server_security(),
+        security=server_security(tmp_path / "audit"),  # its own: the test reads it whole
         tags=tags,
         writes=writes,
         methods=methods,
