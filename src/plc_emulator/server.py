@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from asyncua import ua
@@ -51,7 +50,7 @@ from tanklab.config import SiteConfig
 from tanklab.enums import GainSource
 from tanklab.handlers import HandlerTable
 from tanklab.tags import HEARTBEAT_PATH, Role, Tag, plc_tags, tags_by_path
-from tanklab_io.conditions import UaConditions
+from tanklab_io.conditions import ModelUtc, UaConditions
 from tanklab_io.ua import CURRENT_USER, MethodHandler, Publisher, TankUser, WriteHandler
 from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
@@ -62,32 +61,6 @@ _STATUS = {
     GainStatus.OUT_OF_RANGE: ua.StatusCodes.BadOutOfRange,
     GainStatus.INVALID_STATE: ua.StatusCodes.BadInvalidState,
 }
-
-
-class ModelUtc:
-    """Model time [s] -> UTC, as the PLC's SourceTimestamps are: the wall clock of the scan.
-
-    The PLC stamps every value it publishes with the server's clock when the scan publishes it
-    (:class:`tanklab_io.ua.Publisher`); an alarm event's Time (the core's model time) is mapped
-    the same way. :meth:`anchor` ties model time ``t_s`` to the UTC now (the runtime calls it
-    when it publishes a scan's alarm events, so their Time is that scan's stamp); other model
-    times are the anchor's, moved by the model-time difference over ``speed`` (real time: ``speed``
-    model seconds per wall second; in lock-step only a scan's own events are exact).
-    """
-
-    def __init__(self, speed: float = 1.0) -> None:
-        if not speed > 0:
-            raise ValueError(f"speed must be > 0, got {speed}")
-        self.speed = speed
-        self._t_s = 0.0
-        self._utc = datetime.now(UTC)
-
-    def anchor(self, t_s: float, utc: datetime | None = None) -> None:
-        """Model time ``t_s`` [s] is ``utc`` (default: now)."""
-        self._t_s, self._utc = t_s, utc or datetime.now(UTC)
-
-    def __call__(self, t_s: float) -> datetime:
-        return self._utc + timedelta(seconds=(t_s - self._t_s) / self.speed)
 
 
 class PlcServer:

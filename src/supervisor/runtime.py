@@ -18,14 +18,21 @@ the shed to ADVISORY) is written atomically on every change and requested again 
 restarted supervisor goes back to what it was doing at its first cycle, through the same bumpless
 switch as a write (decision 0026). Only the mode is retentive: the estimate, the RLS state and the
 MPC's plan are rebuilt from the PLC's snapshots.
+
+Alarms (:class:`supervisor.alarms.SupervisorAlarms`): each cycle's status is fed at the
+snapshot's model time, and the PLC link's state whenever it changes (down: no snapshot or the
+scan counter stale; up: a new scan arrived), at the model time of the last snapshot seen; the
+events go out through :meth:`SupervisorServer.publish_alarms` before the next await.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import os
 from pathlib import Path
 
+from supervisor.alarms import SupervisorAlarms
 from supervisor.cycle import SupervisorCore
 from supervisor.link import PlcLink
 from supervisor.port import SupervisorDriver
@@ -120,7 +127,12 @@ async def run_supervisor(
         retained.restore(core)
         retained.save_if_changed(core)  # the file holds the mode in force from the start
     driver = SupervisorDriver(core)
-    server = SupervisorServer(site, core, host, port, security)
+    alarms = SupervisorAlarms(
+        site,
+        adaptation=core.adapter is not None,
+        event_prefix=os.urandom(8),  # EventIds unique across restarts of the process
+    )
+    server = SupervisorServer(site, core, host, port, security, alarms=alarms, speed=speed)
     if retained is not None:
         server.on_mode = lambda: retained.save_if_changed(core)
     ts_wall = site.plc.scan_period_s / speed
@@ -139,6 +151,16 @@ async def run_supervisor(
     last_progress = clock.now()
     connected = False
     link_published: dict[str, object] = {}
+    link_up = False  # as the alarms were last fed (PlcLinkLost stays normal until a first loss)
+    t_model = 0.0  # model time of the last snapshot [s]
+
+    async def link_alarm(up: bool) -> None:
+        nonlocal link_up
+        if up != link_up:
+            link_up = up
+            if events := alarms.feed(None, up, t_model):
+                await server.publish_alarms(events)
+
     try:
         while not stop.is_set():
             snap = await link.snapshot()
@@ -151,6 +173,7 @@ async def run_supervisor(
                     log.warning("PLC lost; will read the applied gains back after reconnecting")
                     core.push_refused()
                 connected = False
+                await link_alarm(False)
                 await server.publish({paths.supervisor.plc_connected: False})
                 await sleep_or_stop(clock, now + poll_s * 10, stop)
                 continue
@@ -164,10 +187,13 @@ async def run_supervisor(
                     log.warning("PLC scan counter stale for %.1f s: dropping the link", now - last_progress)
                     await link.close()
                     driver.lost()
+                    await link_alarm(False)
                     continue
                 await sleep_or_stop(clock, now + poll_s, stop)
                 continue
             last_progress = now
+            t_model = snap.t_s
+            await link_alarm(True)
             sheds = core.sheds
             request = driver.on_snapshot(snap)
             if request is None:
@@ -183,6 +209,8 @@ async def run_supervisor(
             except LinkError as e:
                 log.warning("%s", e)
             if request.actions is not None and request.actions.status is not None:
+                if events := alarms.feed(request.actions.status, link_up, t_model):
+                    await server.publish_alarms(events)
                 await server.publish_status(request.actions.status)
                 if trace_file is not None and core.result_scan == snap.scan:
                     trace_file.write(",".join(repr(x) for x in trace_row(snap.scan, snap.t_s, core)) + "\n")

@@ -7,22 +7,32 @@ that knows which node shows what.
 ``Supervisor.Mode`` is writable (engineer): OFF, ADVISORY, ADAPTIVE_PID, MPC; the switch happens
 at the next cycle, bumplessly. ADAPTIVE_PID on a site whose loops are not all PID loops is
 refused with BadInvalidState.
+
+The supervisor's own alarms (:class:`supervisor.alarms.SupervisorAlarms`: MpcFailing,
+AdaptationUnhealthy, PlcLinkLost) are OPC UA conditions under ``Supervisor`` (installed at
+:meth:`SupervisorServer.start`, docs/alarms.md section 9): the runtime publishes each cycle's
+events with :meth:`SupervisorServer.publish_alarms`; a client's condition call is answered by
+``manager.call(call, alarms.t_s)``, the model time of the last feed. Feeds and calls are
+serialised by the one asyncio loop (both synchronous).
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from asyncua import ua
 
+from supervisor.alarms import SupervisorAlarms
 from supervisor.cycle import SupervisorCore, SupervisorStatus
 from tanklab import paths
+from tanklab.alarms import CallStatus, ConditionCall, ConditionEvent
 from tanklab.config import SiteConfig
 from tanklab.enums import MpcStatus, SupervisorMode
 from tanklab.handlers import HandlerTable
 from tanklab.tags import Tag, supervisor_tags, tags_by_path
+from tanklab_io.conditions import ModelUtc, UaConditions
 from tanklab_io.ua import Publisher, WriteHandler
 from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
@@ -30,13 +40,29 @@ log = logging.getLogger(__name__)
 
 
 class SupervisorServer:
-    """Serves a :class:`SupervisorCore` at ``opc.tcp://HOST:PORT/tanklab/supervisor``."""
+    """Serves a :class:`SupervisorCore` at ``opc.tcp://HOST:PORT/tanklab/supervisor``.
+
+    ``alarms``: the supervisor's alarms (a fresh :class:`SupervisorAlarms` without EventId prefix
+    by default; the runtime passes one with its process's prefix). ``speed``: model seconds per
+    wall second (how alarm events' model time maps to UTC).
+    """
 
     def __init__(
-        self, site: SiteConfig, core: SupervisorCore, host: str, port: int, security: ServerSecurity
+        self,
+        site: SiteConfig,
+        core: SupervisorCore,
+        host: str,
+        port: int,
+        security: ServerSecurity,
+        *,
+        alarms: SupervisorAlarms | None = None,
+        speed: float = 1.0,
     ) -> None:
         self.site = site
         self.core = core
+        self.alarms = alarms or SupervisorAlarms(site, adaptation=core.adapter is not None)
+        self.conditions: UaConditions | None = None
+        self.to_utc = ModelUtc(speed)
         self.url = f"opc.tcp://{host}:{port}/tanklab/supervisor"
         self.tags = supervisor_tags(site)
         self.by_path = tags_by_path(self.tags)
@@ -57,8 +83,30 @@ class SupervisorServer:
             writes=self.write_handlers(),
         )
         self.publisher = self.tier.publisher
+        manager = self.alarms.manager
+        self.to_utc.anchor(self.alarms.t_s)
+        self.conditions = await UaConditions.install(
+            self.tier.server,
+            "supervisor",
+            manager.definitions,
+            handler=self._alarm_call,
+            retained=manager.retained,
+            to_utc=self.to_utc,
+            audit=self.tier.audit,
+            max_time_shelved_s=manager.max_shelving_time_s,  # the core's own limit
+        )
         await self.publish_status(self.core.status())
         log.info("supervisor server listening at %s", self.url)
+
+    def _alarm_call(self, call: ConditionCall) -> tuple[CallStatus, Sequence[ConditionEvent]]:
+        """A client's condition call, answered by the core at the last feed's model time."""
+        return self.alarms.manager.call(call, self.alarms.t_s)
+
+    async def publish_alarms(self, events: Sequence[ConditionEvent]) -> None:
+        """Raise a feed's alarm events (call only with some) and anchor their model time to now."""
+        assert self.conditions is not None
+        self.to_utc.anchor(self.alarms.t_s)
+        await self.conditions.publish(events)
 
     async def stop(self) -> None:
         if self.tier is not None:

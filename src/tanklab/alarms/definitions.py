@@ -7,6 +7,10 @@ range (EEMUA 191) unless configured. Per loop a bad-PV alarm (``LIC1PvBad``, Dis
 field link's ``IoFault`` and the supervisor's ``SupervisorLost`` (OffNormal); per interlocked tank
 its trip (``T1Trip``, OffNormal, latched, to be confirmed). Overrides come from
 ``plc.alarms.overrides`` (checked by the site config).
+
+The supervisor's own alarms (:func:`supervisor_alarms`, docs/alarms.md section 9): ``MpcFailing``,
+``AdaptationUnhealthy`` (only with a gain adapter) and ``PlcLinkLost``, all Discrete, with the
+priorities of :data:`SUPERVISOR_PRIORITIES`.
 """
 
 from __future__ import annotations
@@ -18,7 +22,16 @@ from tanklab.alarms.model import AlarmDefinition, ConditionKind, Priority
 from tanklab.config import SiteConfig
 from tanklab.config.plc import AlarmOverride
 
-__all__ = ["DEADBAND_FRACTION", "DEFAULT_LEVEL_PRIORITIES", "DEFAULT_PRIORITIES", "plc_alarms", "plc_manager"]
+__all__ = [
+    "DEADBAND_FRACTION",
+    "DEFAULT_LEVEL_PRIORITIES",
+    "DEFAULT_PRIORITIES",
+    "SUPERVISOR_PRIORITIES",
+    "plc_alarms",
+    "plc_manager",
+    "supervisor_alarms",
+    "supervisor_manager",
+]
 
 DEADBAND_FRACTION = 0.02
 """Default level deadband as a fraction of the transmitter range (EEMUA 191)."""
@@ -33,6 +46,20 @@ DEFAULT_PRIORITIES = {
     "Trip": Priority.URGENT,
 }
 """The discrete alarms' default priorities (by name, or by suffix for the per-loop / per-tank ones)."""
+
+SUPERVISOR_PRIORITIES = {
+    names.MPC_FAILING: Priority.MEDIUM,
+    names.ADAPTATION_UNHEALTHY: Priority.LOW,
+    names.PLC_LINK_LOST: Priority.HIGH,
+}
+"""The supervisor's alarms' priorities (ISA-18.2: by the consequence and the time to respond).
+
+PlcLinkLost HIGH: the supervisor no longer sees or drives the process (MPC's pumps fall back
+to the PLC's watchdog), the operator must act soon, as for the PLC's IoFault. MpcFailing
+MEDIUM: the MPC holds its shifted last plan, the process is still controlled (the PLC's loops
+and interlocks stand), the response is minutes away. AdaptationUnhealthy LOW: a rejected gain
+set changes nothing (the PLC keeps the gains it applies); the engineer looks at it when convenient.
+"""
 
 _LIMIT_NAMES = ("HighHigh", "High", "Low", "LowLow")
 
@@ -181,6 +208,62 @@ def plc_manager(site: SiteConfig, *, event_prefix: bytes = b"") -> AlarmManager:
     """An :class:`AlarmManager` over :func:`plc_alarms` with the site's maximum shelving time."""
     defs = plc_alarms(site)
     assert site.plc is not None
+    return AlarmManager(
+        defs, event_prefix=event_prefix, max_shelving_time_s=site.plc.alarms.max_shelving_time_s
+    )
+
+
+def supervisor_alarms(site: SiteConfig, *, adaptation: bool) -> tuple[AlarmDefinition, ...]:
+    """The supervisor's alarm definitions, in order: MpcFailing, AdaptationUnhealthy (only with
+    ``adaptation``: the supervisor has a gain adapter, every loop a PID loop), PlcLinkLost.
+
+    Raises
+    ------
+    ValueError
+        The site has no ``supervisor`` section.
+    """
+    if site.supervisor is None:
+        raise ValueError(f"site {site.name!r} has no supervisor section")
+    sup = paths.supervisor
+    out = [
+        AlarmDefinition(
+            name=names.MPC_FAILING,
+            kind=ConditionKind.DISCRETE,
+            source=sup.mpc,
+            message="MPC failing (plan held)",
+            priority=SUPERVISOR_PRIORITIES[names.MPC_FAILING],
+            input_path=sup.mpc_status,
+        )
+    ]
+    if adaptation:
+        out.append(
+            AlarmDefinition(
+                name=names.ADAPTATION_UNHEALTHY,
+                kind=ConditionKind.DISCRETE,
+                source=sup.rls_root,
+                message="Gain adaptation unhealthy (last gain set rejected)",
+                priority=SUPERVISOR_PRIORITIES[names.ADAPTATION_UNHEALTHY],
+            )
+        )
+    out.append(
+        AlarmDefinition(
+            name=names.PLC_LINK_LOST,
+            kind=ConditionKind.DISCRETE,
+            source=sup.plc_link,
+            message="PLC link lost",
+            priority=SUPERVISOR_PRIORITIES[names.PLC_LINK_LOST],
+            input_path=sup.plc_connected,
+        )
+    )
+    return tuple(out)
+
+
+def supervisor_manager(site: SiteConfig, *, adaptation: bool, event_prefix: bytes = b"") -> AlarmManager:
+    """An :class:`AlarmManager` over :func:`supervisor_alarms` with the site's maximum shelving
+    time (the ``plc.alarms`` one: one alarm philosophy per site; the core's default without it)."""
+    defs = supervisor_alarms(site, adaptation=adaptation)
+    if site.plc is None:
+        return AlarmManager(defs, event_prefix=event_prefix)
     return AlarmManager(
         defs, event_prefix=event_prefix, max_shelving_time_s=site.plc.alarms.max_shelving_time_s
     )

@@ -19,6 +19,7 @@ from tanklab_io.conditions.projection import (
     UaConditions,
     initial_snapshot,
 )
+from tanklab_io.conditions.utc import ModelUtc
 
 __all__ = [
     "ALLOWED",
@@ -28,6 +29,7 @@ __all__ = [
     "TYPE_METHODS",
     "ConditionNode",
     "Handler",
+    "ModelUtc",
     "Retained",
     "SubtypeWhereClause",
     "ToUtc",

@@ -1,0 +1,113 @@
+"""The supervisor's own alarms as live OPC UA conditions, through real plant, PLC and supervisor
+processes (issue 15, supervisor part).
+
+A client subscribed to the supervisor's Server object sees no PlcLinkLost event while the PLC
+runs; when the PLC process is killed it receives PlcLinkLost active (HIGH Severity, unacked,
+retained); when the PLC is restarted the condition returns to normal (still unacknowledged, so
+retained), and its EventId acknowledges it.
+
+Waits are on events (``wait_until``), never on elapsed time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+
+from helpers import secure, wait_until
+from tanklab import paths
+from tanklab.alarms import Priority, names
+from tanklab.tags import NAMESPACE_URI
+from tanklab_testing.procs import free_base_port
+from tanklab_testing.sites import site_config
+from tanklab_testing.stack import Stack
+
+pytestmark = pytest.mark.process
+
+FIELDS = ("EventId", "EventType", "SourceName", "Severity", "Retain", "ActiveState/Id", "AckedState/Id")
+ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+
+
+class Events:
+    """Collects the selected fields of every event (in arrival order)."""
+
+    def __init__(self) -> None:
+        self.items: list[dict[str, Any]] = []
+
+    def event_notification(self, event: Any) -> None:
+        self.items.append({k: v.Value for k, v in event.get_event_props_as_fields_dict().items()})
+
+    def of(self, condition: ua.NodeId) -> list[dict[str, Any]]:
+        return [e for e in self.items if e.get("NodeId") == condition]
+
+
+def event_filter() -> ua.EventFilter:
+    f = ua.EventFilter()
+    for path in FIELDS:
+        op = ua.SimpleAttributeOperand()
+        op.TypeDefinitionId = ua.NodeId(ua.ObjectIds.BaseEventType)
+        op.BrowsePath = [ua.QualifiedName(p, 0) for p in path.split("/")]
+        op.AttributeId = ua.AttributeIds.Value
+        f.SelectClauses.append(op)
+    cid = ua.SimpleAttributeOperand()  # the ConditionId
+    cid.TypeDefinitionId = ua.NodeId(ua.ObjectIds.ConditionType)
+    cid.AttributeId = ua.AttributeIds.NodeId
+    f.SelectClauses.append(cid)
+    return f
+
+
+async def call(client: Client, obj: ua.NodeId, method: ua.NodeId, *args: ua.Variant) -> str:
+    """A raw call's status name (no exception on a Bad status)."""
+    req = ua.CallMethodRequest(ObjectId=obj, MethodId=method, InputArguments=list(args))
+    (result,) = await client.uaclient.call([req])
+    return str(result.StatusCode.name)
+
+
+@pytest.fixture
+async def stack(tmp_path: Path) -> AsyncIterator[Stack]:
+    config = site_config(tmp_path / "site.yaml", at_operating_point=True)
+    s = Stack(config, free_base_port(3), speed=20.0, state_file=tmp_path / "plant.json")
+    try:
+        await s.up()
+        yield s
+    finally:
+        await s.down()
+
+
+async def test_plc_link_lost_is_raised_when_the_plc_dies_and_clears_when_it_returns(stack: Stack) -> None:
+    async with await secure(stack.supervisor_url, "operator") as op:
+        idx = await op.get_namespace_index(NAMESPACE_URI)
+        cid = ua.NodeId(paths.condition("supervisor", names.PLC_LINK_LOST), idx)
+        connected = op.get_node(ua.NodeId(paths.supervisor.plc_connected, idx))
+        await wait_until(connected.read_value, 60, what="the supervisor connected to the PLC")
+        events = Events()
+        sub = await op.create_subscription(100, events)
+        await sub.subscribe_events(ua.ObjectIds.Server, ua.ObjectIds.BaseEventType, evfilter=event_filter())
+
+        def states() -> list[bool]:
+            return [e["ActiveState/Id"] for e in events.of(cid)]
+
+        await stack.kill("plc")
+        await wait_until(lambda: True in states(), 60, what="the PlcLinkLost activation event")
+        lost = next(e for e in events.of(cid) if e["ActiveState/Id"] is True)
+        assert lost["EventType"] == ua.NodeId(ua.ObjectIds.DiscreteAlarmType)
+        assert lost["SourceName"] == paths.supervisor.plc_link.rsplit(".", 1)[-1]
+        assert lost["Severity"] == int(Priority.HIGH)
+        assert lost["Retain"] is True and lost["AckedState/Id"] is False
+
+        await stack.start("plc")
+        await wait_until(lambda: states()[-1] is False, 60, what="PlcLinkLost back to normal")
+        normal = events.of(cid)[-1]
+        assert normal["Retain"] is True and normal["AckedState/Id"] is False  # still to acknowledge
+        assert states() == [True, False]  # one activation, one return to normal
+
+        comment = ua.Variant(ua.LocalizedText("PLC restarted"), ua.VariantType.LocalizedText)
+        event_id = ua.Variant(normal["EventId"], ua.VariantType.ByteString)
+        assert await call(op, cid, ACK, event_id, comment) == "Good"
+        await wait_until(lambda: events.of(cid)[-1]["Retain"] is False, 20, what="the acknowledged event")
+        assert events.of(cid)[-1]["AckedState/Id"] is True
+        await sub.delete()
