@@ -340,7 +340,7 @@ def shelve(
         else:
             arg = [ua.Variant(ms, ua.VariantType.Double)]
             await _call_and_tell(
-                stack, name, "ShelvingState/TimedShelve", arg, f"{ms:g} ms", f"shelved for {duration}"
+                stack, name, "ShelvingState/TimedShelve", arg, f"{ms:.0f} ms", f"shelved for {duration}"
             )
         return 0
 
