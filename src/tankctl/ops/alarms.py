@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Any
@@ -26,7 +26,7 @@ from asyncua import ua
 from tankctl.ops.client import TierClient
 from tankctl.ops.errors import UsageError
 from tankctl.ops.options import JsonOpt, StackOptions, stack_command
-from tankctl.ops.run import check_usage, run
+from tankctl.ops.run import check_usage, fail, run
 from tankctl.ops.stack import Stack
 from tanklab import paths
 from tanklab.alarms.definitions import plc_alarms
@@ -59,7 +59,7 @@ def parse_duration_ms(text: str) -> float:
     t = text.strip().lower().replace(" ", "")
     if re.fullmatch(r"\d+(?:\.\d+)?", t):
         ms = float(t) * 1000.0
-    elif t and _PART.sub("", t) == "" and re.fullmatch(r"(?:\d+(?:\.\d+)?(?:ms|s|m|h|d))+", t):
+    elif re.fullmatch(f"(?:{_PART.pattern})+", t):
         ms = sum(float(n) * _UNITS_MS[u] for n, u in _PART.findall(t))
     else:
         raise UsageError(f"a duration is like 15m, 900s or 1h (units ms, s, m, h, d), got {text!r}")
@@ -262,19 +262,42 @@ def _one_line(row: AlarmRow) -> str:
     return f"{row.state}{limit}{shelved}"
 
 
-async def _call_and_tell(
-    stack: Stack, name: str, method: str, variants: Sequence[ua.Variant], shown: str, verb: str
-) -> None:
-    """Read the condition's state, call ``method`` (a child path below it), read it again and
-    print ``NAME: VERB (was STATE, now STATE)``; a Bad status is a CallRefusedError (exit 1)."""
+Arguments = Callable[[AlarmDefinition, Mapping[str, Any]], tuple[list[ua.Variant], str]]
+"""The call's arguments and how they are shown, from the condition's state read just before."""
+
+
+def _no_arguments(definition: AlarmDefinition, values: Mapping[str, Any]) -> tuple[list[ua.Variant], str]:
+    return [], ""
+
+
+async def _call_and_tell(stack: Stack, name: str, method: str, arguments: Arguments, verb: str) -> None:
+    """Read the condition's state (one Read), call ``method`` (a child path below it) with
+    ``arguments(state)``, read it again and print ``NAME: VERB (was STATE; now STATE)``; a Bad
+    status is a CallRefusedError (one line, exit 1), an unknown name a UsageError (exit 2)."""
     await stack.resolve("plc")
     d = known(definitions_of(stack), name)
     nodes = [child(d.name, f) for f in fields_of(d)]
     async with stack.client("plc").will_read(nodes) as plc:
-        before = condition_row(d, await plc.read(nodes))
+        values = await plc.read(nodes)
+        variants, shown = arguments(d, values)
         await plc.call_variants(child(d.name, method), variants, shown)
         after = condition_row(d, await plc.read(nodes))
-    typer.echo(f"{d.name}: {verb} (was {_one_line(before)}; now {_one_line(after)})")
+    typer.echo(f"{d.name}: {verb} (was {_one_line(condition_row(d, values))}; now {_one_line(after)})")
+
+
+def acknowledge_arguments(comment: str) -> Arguments:
+    """Acknowledge's (EventId ByteString, Comment LocalizedText), the EventId the latest read."""
+
+    def arguments(d: AlarmDefinition, values: Mapping[str, Any]) -> tuple[list[ua.Variant], str]:
+        event_id = values.get(child(d.name, "EventId"))
+        raw = event_id if isinstance(event_id, bytes) else b""
+        variants = [
+            ua.Variant(raw, ua.VariantType.ByteString),
+            ua.Variant(ua.LocalizedText(comment), ua.VariantType.LocalizedText),
+        ]
+        return variants, f"EventId {raw.hex() or '?'}, {comment!r}"
+
+    return arguments
 
 
 @stack_command
@@ -286,24 +309,12 @@ def ack(
 ) -> None:
     """Acknowledge an alarm: read its latest EventId, call its Acknowledge(EventId, Comment)."""
     stack = options.stack()
+    note = f", comment {comment!r}" if comment else ""
 
     async def main() -> int:
-        await stack.resolve("plc")
-        d = known(definitions_of(stack), name)
-        nodes = [child(d.name, f) for f in fields_of(d)]
-        async with stack.client("plc").will_read(nodes) as plc:
-            before_values = await plc.read(nodes)
-            before = condition_row(d, before_values)
-            event_id = before_values.get(child(d.name, "EventId"))
-            args = [
-                ua.Variant(event_id if isinstance(event_id, bytes) else b"", ua.VariantType.ByteString),
-                ua.Variant(ua.LocalizedText(comment), ua.VariantType.LocalizedText),
-            ]
-            shown = f"EventId {event_id.hex() if isinstance(event_id, bytes) else '?'}, {comment!r}"
-            await plc.call_variants(child(d.name, "Acknowledge"), args, shown)
-            after = condition_row(d, await plc.read(nodes))
-        note = f", comment {comment!r}" if comment else ""
-        typer.echo(f"{d.name}: acknowledged{note} (was {_one_line(before)}; now {_one_line(after)})")
+        await _call_and_tell(
+            stack, name, "Acknowledge", acknowledge_arguments(comment), f"acknowledged{note}"
+        )
         return 0
 
     run(main)
@@ -323,32 +334,23 @@ def shelve(
 ) -> None:
     """Shelve an alarm: --for DURATION (TimedShelve, in ms) or --once (OneShotShelve)."""
     if (duration is None) == (not once):
-        check_usage(_give_one)
+        raise fail("give one of --for DURATION and --once", 2)
     ms = check_usage(lambda: parse_duration_ms(duration)) if duration is not None else None
     stack = options.stack()
 
     async def main() -> int:
         if ms is None:
-            await _call_and_tell(
-                stack,
-                name,
-                "ShelvingState/OneShotShelve",
-                [],
-                "",
-                "shelved once (until it returns to normal)",
-            )
+            verb = "shelved once (until it returns to normal)"
+            await _call_and_tell(stack, name, "ShelvingState/OneShotShelve", _no_arguments, verb)
         else:
-            arg = [ua.Variant(ms, ua.VariantType.Double)]
-            await _call_and_tell(
-                stack, name, "ShelvingState/TimedShelve", arg, f"{ms:.0f} ms", f"shelved for {duration}"
-            )
+
+            def timed(d: AlarmDefinition, values: Mapping[str, Any]) -> tuple[list[ua.Variant], str]:
+                return [ua.Variant(ms, ua.VariantType.Double)], f"{ms:.0f} ms"
+
+            await _call_and_tell(stack, name, "ShelvingState/TimedShelve", timed, f"shelved for {duration}")
         return 0
 
     run(main)
-
-
-def _give_one() -> None:
-    raise UsageError("give one of --for DURATION and --once")
 
 
 @stack_command
@@ -361,7 +363,7 @@ def unshelve(
     stack = options.stack()
 
     async def main() -> int:
-        await _call_and_tell(stack, name, "ShelvingState/Unshelve", [], "", "unshelved")
+        await _call_and_tell(stack, name, "ShelvingState/Unshelve", _no_arguments, "unshelved")
         return 0
 
     run(main)
