@@ -171,6 +171,13 @@ async def test_setpoint_and_status_against_a_real_plc_load_no_numerics() -> None
         assert p.returncode == 0, p.stderr
         assert "tankctl.ops" in modules and _loaded(modules) == []
         assert json.loads(p.stdout)["plc"]["loops"]["LIC1"]["sp_m"] == pytest.approx(0.45)
+
+        # `alarms` (one Read of the conditions) loads its own module, not rich nor the others'.
+        p, modules = _run("alarms", "--json", "--all", *where)
+        assert p.returncode == 0, p.stderr
+        assert "tankctl.ops.alarms" in modules and _loaded(modules) == []
+        assert not {"rich", "tanklab.scenario", "tankctl.ops.status", "tankctl.ops.writes"} & set(modules)
+        assert {"T1Level", "IoFault"} <= {row["name"] for row in json.loads(p.stdout)}
     finally:
         await plc.stop()
         await plant.stop()

@@ -15,6 +15,9 @@
     tankctl gains LIC1 --reset                   PLC.LIC1.ResetGains: the configured gains again
     tankctl browse [plant|plc|supervisor] [--json]   the servers' node trees, browsed
     tankctl watch [--interval 1] [--duration S]  live trend of levels against setpoints
+    tankctl alarms [--json] [--all]              the PLC's standing alarms (conditions), one Read
+    tankctl ack T1Level [--comment TEXT]         Acknowledge(EventId, Comment) of a condition
+    tankctl shelve T1Level --for 15m | --once    TimedShelve(ms) / OneShotShelve; tankctl unshelve T1Level
     tankctl scenario run FILE                    a scenario's timed events, on the plant's model time
 
 Endpoints (every command): ``--plant-url`` / ``--plc-url`` / ``--supervisor-url``, else
@@ -49,7 +52,7 @@ exit codes), :mod:`~tankctl.ops.stack` (endpoints and the site), :mod:`~tankctl.
 connected tier), :mod:`~tankctl.ops.options` (the shared options, declared once),
 :mod:`~tankctl.ops.run` (asyncio, one-line failures), :mod:`~tankctl.ops.display` (values for
 people), and a module per command group: ``writes``, ``gains``, ``status``, ``browse``,
-``watch``, ``scenario`` (decision 0031).
+``watch``, ``alarms``, ``scenario`` (decision 0031).
 
 The names below are imported from their modules when first used (PEP 562), so that a command
 imports only its own module and what that needs: ``tankctl setpoint`` loads neither rich's
@@ -150,6 +153,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gains": ("gains", "gains"),
     "browse": ("browse", "browse"),
     "watch": ("watch", "watch"),
+    "alarms": ("alarms", "alarms"),
+    "ack": ("alarms", "ack"),
+    "shelve": ("alarms", "shelve"),
+    "unshelve": ("alarms", "unshelve"),
 }
 """The operator commands, in the order ``tankctl --help`` lists them: name -> (module of this
 package, function)."""

@@ -260,11 +260,17 @@ class TierClient:
         """Call the method ``path`` with Double arguments; a Bad status raises
         :class:`CallRefusedError` (with ``hints[status]`` as its reason, when given)."""
         variants = [ua.Variant(float(a), ua.VariantType.Double) for a in args]
+        await self.call_variants(path, variants, ", ".join(f"{a:g}" for a in args), hints=hints)
+
+    async def call_variants(
+        self, path: str, variants: Sequence[ua.Variant], shown: str, *, hints: Mapping[str, str] | None = None
+    ) -> None:
+        """Call the method ``path`` (its object the path's parent) with typed ``variants``; a
+        Bad status raises :class:`CallRefusedError` showing the arguments as ``shown``."""
         try:
             await self._linked(self.link.call(path, *variants))
         except ua.UaStatusCodeError as e:
             status = str(ua.StatusCode(e.code).name)
-            shown = ", ".join(f"{a:g}" for a in args)
             raise CallRefusedError(path, shown, status, (hints or {}).get(status, "")) from None
 
     async def eu_range(self, path: str) -> tuple[float, float] | None:

@@ -1,0 +1,155 @@
+"""``tankctl alarms`` / ``ack`` / ``shelve``: durations, rows and the table, without a server."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+import pytest
+from asyncua import ua
+from typer.testing import CliRunner
+
+from helpers import ROOT
+from tankctl.cli import app
+from tankctl.ops.alarms import (
+    LIMIT_FIELD,
+    STATE_FIELDS,
+    child,
+    condition_rows,
+    known,
+    parse_duration_ms,
+    read_paths,
+    render_rows,
+)
+from tankctl.ops.errors import UsageError
+from tanklab.alarms.definitions import plc_alarms
+from tanklab.alarms.model import ConditionKind
+from tanklab.config import load_site
+
+SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
+DEFS = plc_alarms(SITE)
+
+
+@pytest.mark.parametrize(
+    ("text", "ms"),
+    [
+        ("15m", 900_000.0),
+        ("900s", 900_000.0),
+        ("1h", 3_600_000.0),
+        ("1h30m", 5_400_000.0),
+        ("500ms", 500.0),
+        ("90", 90_000.0),
+        (" 2M ", 120_000.0),
+        ("1.5s", 1500.0),
+        ("1d", 86_400_000.0),
+    ],
+)
+def test_durations_are_milliseconds(text: str, ms: float) -> None:
+    assert parse_duration_ms(text) == ms
+
+
+@pytest.mark.parametrize("text", ["", "m", "15 minutes", "-5m", "0s", "1x", "nan", "1h-5m", "s15"])
+def test_bad_durations_are_usage_errors(text: str) -> None:
+    with pytest.raises(UsageError):
+        parse_duration_ms(text)
+
+
+def test_one_read_covers_every_condition_and_only_level_alarms_have_a_limit() -> None:
+    nodes = read_paths(DEFS)
+    assert len(nodes) == len(set(nodes))
+    for d in DEFS:
+        has_limit = child(d.name, LIMIT_FIELD) in nodes
+        assert has_limit == (d.kind == ConditionKind.EXCLUSIVE_LEVEL)
+        assert all(child(d.name, f) in nodes for f in STATE_FIELDS)
+    assert child("T1Level", "AckedState/Id") == "PLC.Conditions.T1Level.AckedState.Id"
+
+
+def _values(name: str, *, active: bool, acked: bool, retain: bool, **extra: object) -> dict[str, object]:
+    fields = {
+        "Severity": 700,
+        "Message": ua.LocalizedText("T1 level low"),
+        "Time": datetime(2026, 12, 2, 7, 30, 5, tzinfo=UTC),
+        "Retain": retain,
+        "EnabledState/Id": True,
+        "ActiveState/Id": active,
+        "AckedState/Id": acked,
+        "ShelvingState/CurrentState": ua.LocalizedText("Unshelved"),
+        LIMIT_FIELD: ua.LocalizedText("Low"),
+        **extra,
+    }
+    return {child(name, f): v for f, v in fields.items()}
+
+
+def test_standing_rows_their_states_and_every_row_with_all() -> None:
+    values = {
+        **_values("T1Level", active=True, acked=False, retain=True),
+        **_values(
+            "T2Level",
+            active=False,
+            acked=True,
+            retain=False,
+            **{"ShelvingState/CurrentState": ua.LocalizedText("TimedShelved")},
+        ),
+        **_values("IoFault", active=False, acked=False, retain=True, **{"EnabledState/Id": False}),
+    }
+    standing = condition_rows(DEFS, values)
+    assert [r.name for r in standing] == ["T1Level", "IoFault"]
+    t1, io = standing
+    assert (t1.state, t1.limit, t1.priority, t1.since) == (
+        "ACTIVE UNACK",
+        "Low",
+        "HIGH",
+        "2026-12-02T07:30:05Z",
+    )
+    assert io.state == "RTN UNACK DISABLED" and io.limit is None
+    every = {r.name: r for r in condition_rows(DEFS, values, every=True)}
+    assert len(every) == len(DEFS)
+    assert every["T2Level"].state == "RTN ACK SHELVED"
+    # A condition whose nodes all read Bad (None) shows as unknown, not as standing.
+    assert every["T3Level"].severity is None and not every["T3Level"].standing
+    assert t1.as_json()["state"] == "ACTIVE UNACK" and t1.as_json()["acked"] is False
+
+
+def test_the_table_has_a_header_and_one_line_per_row() -> None:
+    rows = condition_rows(DEFS, _values("T1Level", active=True, acked=False, retain=True))
+    lines = render_rows(rows).splitlines()
+    assert lines[0].split() == ["NAME", "PRIORITY", "STATE", "LIMIT", "SINCE", "MESSAGE"]
+    assert lines[1].split() == [
+        "T1Level",
+        "HIGH",
+        "(700)",
+        "ACTIVE",
+        "UNACK",
+        "Low",
+        "2026-12-02T07:30:05Z",
+        "T1",
+        "level",
+        "low",
+    ]
+    assert render_rows([]) == "no standing alarms"
+
+
+def test_an_unknown_name_lists_the_known_ones() -> None:
+    assert known(DEFS, "t1level").name == "T1Level"
+    with pytest.raises(UsageError, match=r"unknown alarm 'T9Level' \(the PLC has T1Level, .*IoFault"):
+        known(DEFS, "T9Level")
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["shelve", "T1Level"], "give one of --for DURATION and --once"),
+        (["shelve", "T1Level", "--once", "--for", "5m"], "give one of --for DURATION and --once"),
+        (["shelve", "T1Level", "--for", "soon"], "a duration is like 15m"),
+    ],
+)
+def test_shelve_checks_its_options_before_connecting(argv: list[str], message: str) -> None:
+    r = CliRunner().invoke(app, [*argv, "--base-port", "1"])
+    assert r.exit_code == 2
+    assert message in r.output
+
+
+def test_an_unknown_alarm_is_exit_2_with_the_known_names_before_connecting() -> None:
+    config = str(ROOT / "configs/three_tank_energies_sim.yaml")
+    r = CliRunner().invoke(app, ["ack", "T9Level", "--config", config, "--base-port", "1"])
+    assert r.exit_code == 2
+    assert "unknown alarm 'T9Level' (the PLC has T1Level" in r.output
