@@ -27,6 +27,7 @@ from tanklab.alarms.definitions import plc_alarms
 from tanklab.alarms.model import LimitState
 from tanklab.config import load_site
 from tanklab.tags import NAMESPACE_URI
+from tanklab_testing.condition_events import Events, event_filter
 from tanklab_testing.procs import free_base_port
 from tanklab_testing.sites import site_config
 from tanklab_testing.stack import Stack
@@ -57,37 +58,9 @@ REFRESH_START = ua.NodeId(ua.ObjectIds.RefreshStartEventType)
 REFRESH_END = ua.NodeId(ua.ObjectIds.RefreshEndEventType)
 
 
-class Events:
-    """Collects the selected fields of every event (in arrival order)."""
-
-    def __init__(self) -> None:
-        self.items: list[dict[str, Any]] = []
-
-    def event_notification(self, event: Any) -> None:
-        self.items.append({k: v.Value for k, v in event.get_event_props_as_fields_dict().items()})
-
-    def of(self, condition: ua.NodeId) -> list[dict[str, Any]]:
-        return [e for e in self.items if e.get("NodeId") == condition]
-
-
-def event_filter() -> ua.EventFilter:
-    f = ua.EventFilter()
-    for path in FIELDS:
-        op = ua.SimpleAttributeOperand()
-        op.TypeDefinitionId = ua.NodeId(ua.ObjectIds.BaseEventType)
-        op.BrowsePath = [ua.QualifiedName(p, 0) for p in path.split("/")]
-        op.AttributeId = ua.AttributeIds.Value
-        f.SelectClauses.append(op)
-    cid = ua.SimpleAttributeOperand()  # the ConditionId
-    cid.TypeDefinitionId = ua.NodeId(ua.ObjectIds.ConditionType)
-    cid.AttributeId = ua.AttributeIds.NodeId
-    f.SelectClauses.append(cid)
-    return f
-
-
 async def subscribe(client: Client, events: Events) -> Any:
     sub = await client.create_subscription(100, events)
-    await sub.subscribe_events(ua.ObjectIds.Server, ua.ObjectIds.BaseEventType, evfilter=event_filter())
+    await sub.subscribe_events(ua.ObjectIds.Server, ua.ObjectIds.BaseEventType, evfilter=event_filter(FIELDS))
     return sub
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 from asyncua import Client, ua
@@ -22,6 +21,7 @@ from helpers import secure, wait_until
 from tanklab import paths
 from tanklab.alarms import Priority, names
 from tanklab.tags import NAMESPACE_URI
+from tanklab_testing.condition_events import Events, event_filter
 from tanklab_testing.procs import free_base_port
 from tanklab_testing.sites import site_config
 from tanklab_testing.stack import Stack
@@ -30,34 +30,6 @@ pytestmark = pytest.mark.process
 
 FIELDS = ("EventId", "EventType", "SourceName", "Severity", "Retain", "ActiveState/Id", "AckedState/Id")
 ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
-
-
-class Events:
-    """Collects the selected fields of every event (in arrival order)."""
-
-    def __init__(self) -> None:
-        self.items: list[dict[str, Any]] = []
-
-    def event_notification(self, event: Any) -> None:
-        self.items.append({k: v.Value for k, v in event.get_event_props_as_fields_dict().items()})
-
-    def of(self, condition: ua.NodeId) -> list[dict[str, Any]]:
-        return [e for e in self.items if e.get("NodeId") == condition]
-
-
-def event_filter() -> ua.EventFilter:
-    f = ua.EventFilter()
-    for path in FIELDS:
-        op = ua.SimpleAttributeOperand()
-        op.TypeDefinitionId = ua.NodeId(ua.ObjectIds.BaseEventType)
-        op.BrowsePath = [ua.QualifiedName(p, 0) for p in path.split("/")]
-        op.AttributeId = ua.AttributeIds.Value
-        f.SelectClauses.append(op)
-    cid = ua.SimpleAttributeOperand()  # the ConditionId
-    cid.TypeDefinitionId = ua.NodeId(ua.ObjectIds.ConditionType)
-    cid.AttributeId = ua.AttributeIds.NodeId
-    f.SelectClauses.append(cid)
-    return f
 
 
 async def call(client: Client, obj: ua.NodeId, method: ua.NodeId, *args: ua.Variant) -> str:
@@ -86,7 +58,9 @@ async def test_plc_link_lost_is_raised_when_the_plc_dies_and_clears_when_it_retu
         await wait_until(connected.read_value, 60, what="the supervisor connected to the PLC")
         events = Events()
         sub = await op.create_subscription(100, events)
-        await sub.subscribe_events(ua.ObjectIds.Server, ua.ObjectIds.BaseEventType, evfilter=event_filter())
+        await sub.subscribe_events(
+            ua.ObjectIds.Server, ua.ObjectIds.BaseEventType, evfilter=event_filter(FIELDS)
+        )
 
         def states() -> list[bool]:
             return [e["ActiveState/Id"] for e in events.of(cid)]
