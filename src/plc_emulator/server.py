@@ -120,15 +120,13 @@ class PlcServer:
         assert self.tier is not None
         manager = self.program.alarms.manager
         self.to_utc.anchor(self.program.t_s)
-        self.conditions = await UaConditions.install(
+        self.conditions = await UaConditions.install_manager(
             self.tier.server,
             "plc",
-            manager.definitions,
+            manager,
             handler=self._alarm_call,
-            retained=manager.retained,
             to_utc=self.to_utc,
             audit=self.tier.audit,
-            max_time_shelved_s=manager.max_shelving_time_s,  # the core's own limit
         )
         await self.conditions.publish(manager.restart_events(self.program.t_s))
 

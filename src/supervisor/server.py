@@ -85,15 +85,13 @@ class SupervisorServer:
         self.publisher = self.tier.publisher
         manager = self.alarms.manager
         self.to_utc.anchor(self.alarms.t_s)
-        self.conditions = await UaConditions.install(
+        self.conditions = await UaConditions.install_manager(
             self.tier.server,
             "supervisor",
-            manager.definitions,
+            manager,
             handler=self._alarm_call,
-            retained=manager.retained,
             to_utc=self.to_utc,
             audit=self.tier.audit,
-            max_time_shelved_s=manager.max_shelving_time_s,  # the core's own limit
         )
         await self.publish_status(self.core.status())
         log.info("supervisor server listening at %s", self.url)

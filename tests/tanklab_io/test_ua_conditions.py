@@ -49,6 +49,7 @@ from tanklab_io.conditions import UaConditions, initial_snapshot
 from tanklab_io.pki import trust
 from tanklab_io.ua import MethodHandler, WriteHandler
 from tanklab_io.ua_security import TierServer, start_tier_server
+from tanklab_testing.condition_events import event_filter as condition_event_filter
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
 EPOCH = datetime(2026, 1, 1, tzinfo=UTC)
@@ -312,17 +313,7 @@ class Events:
 
 def event_filter(of_type: int | None) -> ua.EventFilter:
     """Select :data:`FIELDS` and the ConditionId; where OfType(``of_type``) if given."""
-    f = ua.EventFilter()
-    for path in FIELDS:
-        op = ua.SimpleAttributeOperand()
-        op.TypeDefinitionId = ua.NodeId(ua.ObjectIds.BaseEventType)
-        op.BrowsePath = [ua.QualifiedName(p, 0) for p in path.split("/")]
-        op.AttributeId = ua.AttributeIds.Value
-        f.SelectClauses.append(op)
-    cid = ua.SimpleAttributeOperand()
-    cid.TypeDefinitionId = ua.NodeId(ua.ObjectIds.ConditionType)
-    cid.AttributeId = ua.AttributeIds.NodeId
-    f.SelectClauses.append(cid)
+    f = condition_event_filter(FIELDS)
     if of_type is not None:
         el = ua.ContentFilterElement()
         el.FilterOperator = ua.FilterOperator.OfType

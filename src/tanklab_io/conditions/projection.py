@@ -35,6 +35,7 @@ from asyncua.common.event_objects import RefreshEndEvent, RefreshStartEvent
 from asyncua.common.events import Event
 
 from tanklab import paths
+from tanklab.alarms.manager import AlarmManager
 from tanklab.alarms.model import (
     AlarmDefinition,
     CallStatus,
@@ -221,6 +222,32 @@ class UaConditions:
         self._latest: dict[str, ConditionEvent] = {}
         self._publishing = asyncio.Lock()
         self.published = 0
+
+    @classmethod
+    async def install_manager(
+        cls,
+        server: Server,
+        tier: paths.Tier,
+        manager: AlarmManager,
+        *,
+        handler: Handler,
+        to_utc: ToUtc,
+        audit: AuditLog | None,
+    ) -> UaConditions:
+        """A tier's alarm manager on ``server``: its definitions, its retained conditions for
+        ConditionRefresh, and its maximum shelving time as every condition's MaxTimeShelved (the
+        same limit the core refuses a longer TimedShelve with). ``handler`` answers the calls
+        (the tier passes them to ``manager.call`` at its model time)."""
+        return await cls.install(
+            server,
+            tier,
+            manager.definitions,
+            handler=handler,
+            retained=manager.retained,
+            to_utc=to_utc,
+            audit=audit,
+            max_time_shelved_s=manager.max_shelving_time_s,
+        )
 
     @classmethod
     async def install(
