@@ -22,7 +22,7 @@ from tanklab_io.ua_security import ClientIdentity, ServerSecurity, secure_client
 from tanklab_io.users import Credentials
 from tanklab_testing.logins import Logins
 from tanklab_testing.procs import ROOT, TankctlProcess, UpProcess, free_base_port, free_port, tankctl_pids_on
-from tanklab_testing.waits import wait_until, wait_until_sync
+from tanklab_testing.waits import hang_bound, wait_until, wait_until_sync
 
 __all__ = [
     "ROOT",
@@ -33,6 +33,7 @@ __all__ = [
     "engineer_logins",
     "free_base_port",
     "free_port",
+    "hang_bound",
     "identity",
     "secure",
     "server_security",

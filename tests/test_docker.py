@@ -37,7 +37,7 @@ from typing import Any
 import pytest
 import yaml
 
-from helpers import free_port, identity, server_security, wait_until
+from helpers import free_port, hang_bound, identity, server_security, wait_until
 from tankctl import health
 from tanklab.config import load_site, parse_endpoint_url
 from tanklab.tags import plant_tags, plc_tags, supervisor_tags
@@ -467,7 +467,7 @@ def fresh_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
             env=env,
             capture_output=True,
             text=True,
-            timeout=240,
+            timeout=hang_bound(600),
             check=False,
         )
         assert result.returncode == 0, (
@@ -495,7 +495,7 @@ def _image_env(venv: Path) -> dict[str, str]:
 
 
 @pytest.mark.process
-@pytest.mark.timeout(300)
+@pytest.mark.timeout(1800)
 async def test_image_install_and_start_steps_in_a_fresh_venv(fresh_venv: Path, tmp_path: Path) -> None:
     env = _image_env(fresh_venv)
     # What compose mounts read-only at TANKLAB_HOME (the image has no keys), and the audit volume.
@@ -565,7 +565,7 @@ async def _probe(python: str, url: str, cwd: Path, env: dict[str, str]) -> tuple
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE,
     )
-    out, err = await asyncio.wait_for(probe.communicate(), 20)
+    out, err = await asyncio.wait_for(probe.communicate(), hang_bound(20))
     assert probe.returncode is not None
     return probe.returncode, out.decode().strip(), err.decode().strip()
 
@@ -604,7 +604,7 @@ async def test_health_reads_a_running_plant() -> None:
             await health.read_once(url, "Plant.Sim.Time", identity(tier="supervisor"))
     finally:
         stop.set()
-        await asyncio.wait_for(task, 20)
+        await asyncio.wait_for(task, hang_bound(20))
 
 
 def test_health_default_path_by_tier() -> None:
