@@ -89,9 +89,10 @@ def test_the_shared_enabled_override_disables_a_plc_alarm_at_a_cold_start() -> N
     assert manager.condition("T1Level").enabled is True
 
 
-def test_a_site_without_a_plc_alarms_section_gives_the_core_default() -> None:
+def test_without_either_shelving_maximum_the_supervisor_has_the_cores_default() -> None:
     site = site_from_mapping(energies(overrides={}))
-    assert site.plc is not None and site.plc.alarms.max_shelving_time_s == DEFAULT_MAX_SHELVING_TIME_S
+    assert site.plc is not None and "max_shelving_time_s" not in site.plc.alarms.model_fields_set
+    assert supervisor_manager(site).max_shelving_time_s == DEFAULT_MAX_SHELVING_TIME_S
 
 
 @pytest.mark.parametrize(
