@@ -285,7 +285,7 @@ class SupervisorCore:
         return lin.A, lin.B, x_op, u_op
 
     def _all_pid(self) -> bool:
-        return all(lp.block == "pid" and lp.gains is not None for lp in self.loops)
+        return self.site.supervisor_adapts_gains
 
     def _build_adapter(self) -> PidGainAdapter:
         """The gain adapter in the PLC's units (pump unit per loop error unit)."""

@@ -13,11 +13,15 @@ Staleness watchdog: when ``PLC.Status.Scan`` has not advanced for ``plc_stale_s`
 stops writing, drops the link, reconnects, and reads the applied gains back from the next
 snapshot before it pushes anything (the adapter resynchronises from it).
 
-Retentive mode (``retain_file``): the requested mode (an engineer's ``Supervisor.Mode`` write, or
+Retentive memory (``retain_file``): the requested mode (an engineer's ``Supervisor.Mode`` write, or
 the shed to ADVISORY) is written atomically on every change and requested again on start, so a
 restarted supervisor goes back to what it was doing at its first cycle, through the same bumpless
-switch as a write (decision 0026). Only the mode is retentive: the estimate, the RLS state and the
-MPC's plan are rebuilt from the PLC's snapshots.
+switch as a write (decision 0026). The supervisor's conditions are retentive too, as the PLC's
+(``AlarmManager.to_retain``, written when a feed or a client's call changed one): acked, confirmed,
+enabled, shelving with its model-time end, comments, active; restored before the server starts,
+which announces each restored retained condition once (``AlarmManager.restart_events``). The
+estimate, the RLS state and the MPC's plan are not retentive: they are rebuilt from the PLC's
+snapshots.
 
 Alarms (:class:`supervisor.alarms.SupervisorAlarms`): each cycle's status is fed at the
 snapshot's model time, and the PLC link's state whenever it changes (down: no snapshot or the
@@ -29,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import os
 from pathlib import Path
 
@@ -53,19 +58,29 @@ RETAIN_VERSION = 1
 
 
 class RetainedMode:
-    """The supervisor's retentive memory: its requested mode, in a JSON file.
+    """The supervisor's retentive memory: its requested mode and (with ``alarms``) its
+    conditions, in a JSON file.
 
-    ``{"version": 1, "site": NAME, "mode": "MPC"}``. A missing, unreadable or other site's file
-    is not restored (logged), and is overwritten at the first change.
+    ``{"version": 1, "site": NAME, "mode": "MPC"}``, with ``alarms`` also ``"t_s"`` (the model
+    time of the last feed [s]) and ``"alarms"`` (``AlarmManager.to_retain()``, the PLC's
+    serialisation: per condition Enabled, Active, Acked, Confirmed, Comment and its user,
+    shelving and its end in model time). The file is written when the mode or a condition's
+    retained state changed (not when only the model time moved on). A missing, unreadable or
+    other site's file is not restored (logged), and is overwritten at the first change; a file
+    without ``alarms`` (written before they were kept) restores the mode only.
     """
 
-    def __init__(self, path: Path, site: SiteConfig) -> None:
+    def __init__(self, path: Path, site: SiteConfig, alarms: SupervisorAlarms | None = None) -> None:
         self.path = path
         self.site = site.name
+        self.alarms = alarms
         self.saved: SupervisorMode | None = None
+        self._saved_alarms: dict[str, object] | None = None
 
     def restore(self, core: SupervisorCore) -> SupervisorMode | None:
-        """Request the saved mode on ``core``; the mode restored, or None (the config's)."""
+        """Request the saved mode on ``core`` and restore the saved conditions into ``alarms``
+        (each condition's entry checked whole, as the PLC's); the mode restored, or None (the
+        config's)."""
         if not self.path.exists():
             log.info("supervisor mode from the config: no retentive memory at %s yet", self.path)
             return None
@@ -73,26 +88,56 @@ class RetainedMode:
             data = read_json(self.path)
             if data.get("version") != RETAIN_VERSION or data.get("site") != self.site:
                 raise ValueError(f"written for site {data.get('site')!r}, version {data.get('version')!r}")
+        except (OSError, ValueError, TypeError, KeyError, AttributeError) as e:
+            log.warning("supervisor mode from the config: retentive memory %s not restored: %s", self.path, e)
+            return None
+        self._restore_alarms(data)
+        try:
             mode = SupervisorMode[str(data["mode"])]
             core.request_mode(mode)
-        except (OSError, ValueError, TypeError, KeyError, AttributeError) as e:
+        except (ValueError, TypeError, KeyError, AttributeError) as e:
             log.warning("supervisor mode from the config: retentive memory %s not restored: %s", self.path, e)
             return None
         self.saved = mode
         log.info("warm restart from %s: supervisor mode %s", self.path, mode.name)
         return mode
 
-    def save_if_changed(self, core: SupervisorCore) -> None:
-        """Write the requested mode when it differs from the last one written."""
-        mode = core.requested
-        if mode is self.saved:
+    def _restore_alarms(self, data: dict[str, object]) -> None:
+        if self.alarms is None or "alarms" not in data:  # absent in files of earlier versions
             return
+        entry, t_s = data["alarms"], data.get("t_s", 0.0)
+        if not isinstance(entry, dict):
+            log.warning("supervisor alarms not restored from %s: not a mapping", self.path)
+            return
+        if isinstance(t_s, int | float) and not isinstance(t_s, bool) and math.isfinite(t_s) and t_s >= 0:
+            self.alarms.t_s = float(t_s)
+        skipped = self.alarms.manager.from_retain(entry)
+        self._saved_alarms = self.alarms.manager.to_retain()
+        log.info(
+            "warm restart from %s: supervisor alarms at t = %.1f s%s",
+            self.path,
+            self.alarms.t_s,
+            f" (not restored: {'; '.join(skipped)})" if skipped else "",
+        )
+
+    def save_if_changed(self, core: SupervisorCore) -> None:
+        """Write the requested mode and the conditions when either differs from what was last
+        written."""
+        mode = core.requested
+        conditions = self.alarms.manager.to_retain() if self.alarms is not None else None
+        if mode is self.saved and conditions == self._saved_alarms:
+            return
+        data: dict[str, object] = {"version": RETAIN_VERSION, "site": self.site, "mode": mode.name}
+        if self.alarms is not None:
+            data["t_s"] = self.alarms.t_s
+            data["alarms"] = conditions
         try:
-            write_json_atomic(self.path, {"version": RETAIN_VERSION, "site": self.site, "mode": mode.name})
+            write_json_atomic(self.path, data)
         except OSError as e:
             log.warning("supervisor mode %s not saved to %s: %s", mode.name, self.path, e)
             return
         self.saved = mode
+        self._saved_alarms = conditions
 
 
 async def run_supervisor(
@@ -122,19 +167,24 @@ async def run_supervisor(
         raise ValueError(f"speed must be > 0, got {speed}")
     clock = clock or MonotonicClock()
     core = SupervisorCore(site)
-    retained = RetainedMode(retain_file, site) if retain_file is not None else None
-    if retained is not None:
-        retained.restore(core)
-        retained.save_if_changed(core)  # the file holds the mode in force from the start
-    driver = SupervisorDriver(core)
     alarms = SupervisorAlarms(
         site,
         adaptation=core.adapter is not None,
         event_prefix=os.urandom(8),  # EventIds unique across restarts of the process
     )
-    server = SupervisorServer(site, core, host, port, security, alarms=alarms, speed=speed)
+    retained = RetainedMode(retain_file, site, alarms) if retain_file is not None else None
     if retained is not None:
-        server.on_mode = lambda: retained.save_if_changed(core)
+        retained.restore(core)
+        retained.save_if_changed(core)  # the file holds the mode in force from the start
+    driver = SupervisorDriver(core)
+    server = SupervisorServer(site, core, host, port, security, alarms=alarms, speed=speed)
+
+    def save() -> None:
+        if retained is not None:
+            retained.save_if_changed(core)
+
+    server.on_mode = save
+    server.on_alarms = save
     ts_wall = site.plc.scan_period_s / speed
     link = PlcLink(
         site,
@@ -159,6 +209,7 @@ async def run_supervisor(
         if up != link_up:
             link_up = up
             if events := alarms.feed(None, up, t_model):
+                save()
                 await server.publish_alarms(events)
 
     try:
@@ -210,6 +261,7 @@ async def run_supervisor(
                 log.warning("%s", e)
             if request.actions is not None and request.actions.status is not None:
                 if events := alarms.feed(request.actions.status, link_up, t_model):
+                    save()
                     await server.publish_alarms(events)
                 await server.publish_status(request.actions.status)
                 if trace_file is not None and core.result_scan == snap.scan:

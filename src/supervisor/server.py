@@ -13,7 +13,8 @@ AdaptationUnhealthy, PlcLinkLost) are OPC UA conditions under ``Supervisor`` (in
 :meth:`SupervisorServer.start`, docs/alarms.md section 9): the runtime publishes each cycle's
 events with :meth:`SupervisorServer.publish_alarms`; a client's condition call is answered by
 ``manager.call(call, alarms.t_s)``, the model time of the last feed. Feeds and calls are
-serialised by the one asyncio loop (both synchronous).
+serialised by the one asyncio loop (both synchronous). After a warm restart (the runtime's
+retentive memory) each restored retained condition is announced once at start.
 """
 
 from __future__ import annotations
@@ -71,6 +72,9 @@ class SupervisorServer:
         self.publisher: Publisher | None = None
         self.on_mode: Callable[[], None] | None = None
         """Called after an accepted ``Supervisor.Mode`` write (the runtime saves the mode)."""
+        self.on_alarms: Callable[[], None] | None = None
+        """Called after a client's condition call changed a condition (the runtime saves the
+        retentive memory)."""
 
     async def start(self) -> None:
         """Initialise, secure, build the address space and start listening."""
@@ -93,12 +97,18 @@ class SupervisorServer:
             to_utc=self.to_utc,
             audit=self.tier.audit,
         )
+        # After a warm restart each restored retained condition is announced once, as the PLC's.
+        await self.conditions.publish(manager.restart_events(self.alarms.t_s))
         await self.publish_status(self.core.status())
         log.info("supervisor server listening at %s", self.url)
 
     def _alarm_call(self, call: ConditionCall) -> tuple[CallStatus, Sequence[ConditionEvent]]:
-        """A client's condition call, answered by the core at the last feed's model time."""
-        return self.alarms.manager.call(call, self.alarms.t_s)
+        """A client's condition call, answered by the core at the last feed's model time (the
+        retentive memory is stored when the call changed a condition)."""
+        status, events = self.alarms.manager.call(call, self.alarms.t_s)
+        if events and self.on_alarms is not None:
+            self.on_alarms()
+        return status, events
 
     async def publish_alarms(self, events: Sequence[ConditionEvent]) -> None:
         """Raise a feed's alarm events (call only with some) and anchor their model time to now."""

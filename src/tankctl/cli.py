@@ -440,7 +440,10 @@ def supervisor(
     ] = None,
     retain_file: Annotated[
         Path | None,
-        typer.Option(help="Retentive mode: written on every change, restored on start (default: none)."),
+        typer.Option(
+            help="Retentive mode and alarm states: written on every change, restored on start "
+            "(default: none)."
+        ),
     ] = None,
     home: HomeOpt = None,
     audit_dir: AuditOpt = None,

@@ -1,12 +1,18 @@
-"""A client's view of condition events in tests: a collector and the event filter that selects
-the fields a test compares, plus the ConditionId (OPC UA Part 9)."""
+"""A client's view of condition events in tests: a collector, the event filter that selects
+the fields a test compares plus the ConditionId (OPC UA Part 9), and a ConditionRefresh."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
 
-from asyncua import ua
+from asyncua import Client, ua
+
+from tanklab_testing.waits import wait_until
+
+REFRESH = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
+REFRESH_START = ua.NodeId(ua.ObjectIds.RefreshStartEventType)
+REFRESH_END = ua.NodeId(ua.ObjectIds.RefreshEndEventType)
 
 
 class Events:
@@ -38,3 +44,29 @@ def event_filter(fields: Sequence[str]) -> ua.EventFilter:
     cid.AttributeId = ua.AttributeIds.NodeId
     f.SelectClauses.append(cid)
     return f
+
+
+async def refresh(client: Client, condition: ua.NodeId, fields: Sequence[str]) -> list[dict[str, Any]]:
+    """ConditionRefresh on a fresh Server subscription selecting ``fields`` (and EventType): the
+    events of ``condition`` between RefreshStart and RefreshEnd (both received)."""
+    events = Events()
+    sub = await client.create_subscription(100, events)
+    selected = list(dict.fromkeys([*fields, "EventType"]))
+    await sub.subscribe_events(
+        ua.ObjectIds.Server, ua.ObjectIds.BaseEventType, evfilter=event_filter(selected)
+    )
+    sub_id = ua.Variant(sub.subscription_id, ua.VariantType.UInt32)
+    req = ua.CallMethodRequest(
+        ObjectId=ua.NodeId(ua.ObjectIds.ConditionType), MethodId=REFRESH, InputArguments=[sub_id]
+    )
+    (result,) = await client.uaclient.call([req])
+    assert result.StatusCode.is_good(), result.StatusCode
+
+    def types() -> list[Any]:
+        return [e.get("EventType") for e in events.items]
+
+    await wait_until(lambda: REFRESH_END in types(), 20, what="RefreshEnd")
+    got = types()
+    start, end = got.index(REFRESH_START), got.index(REFRESH_END)
+    await sub.delete()
+    return [e for e in events.items[start + 1 : end] if e.get("NodeId") == condition]

@@ -7,6 +7,12 @@ against the stack's base port, logged in through the session's credentials file 
 it lists the alarm unacknowledged, acknowledges it, lists it acknowledged, refuses a second
 acknowledgement with BadConditionBranchAlreadyAcked (exit 1), shelves and unshelves it.
 
+Across the tiers (plant, PLC and supervisor processes): with the PLC killed, ``tankctl alarms``
+reports the PLC down in one line on stderr and still lists the supervisor's PlcLinkLost (tier
+``supervisor``), which ``ack`` acknowledges by its bare name; with the PLC back both tiers'
+conditions are listed (a TIER column), ``supervisor/NAME`` shelves and ``unshelve`` finds the
+supervisor's condition; with the supervisor killed the PLC's alarms are still listed.
+
 Waits are on node values (``wait_until``), never on elapsed time.
 """
 
@@ -131,3 +137,81 @@ async def test_the_cli_lists_acknowledges_and_shelves_a_live_alarm(stack: Stack)
     assert r.returncode == 1 and r.stderr.strip().endswith("refused: BadConditionNotShelved")
     r = await tankctl("ack", "T9Level", base=base)
     assert r.returncode == 2 and "unknown alarm 'T9Level' (the PLC has T1Level" in r.stderr
+
+
+@pytest.fixture
+async def full_stack(tmp_path: Path) -> AsyncIterator[Stack]:
+    config = site_config(tmp_path / "site.yaml", at_operating_point=True)
+    s = Stack(config, free_base_port(3), speed=20.0, state_file=tmp_path / "plant.json")
+    try:
+        await s.up()
+        yield s
+    finally:
+        await s.down()
+
+
+async def test_the_cli_lists_and_acknowledges_both_tiers_and_reports_a_tier_down(full_stack: Stack) -> None:
+    stack, base = full_stack, full_stack.base
+    cond = paths.condition("supervisor", "PlcLinkLost")
+    async with await secure(stack.supervisor_url) as sup:
+        idx = await sup.get_namespace_index(NAMESPACE_URI)
+        connected = sup.get_node(ua.NodeId(paths.supervisor.plc_connected, idx))
+        await wait_until(connected.read_value, 60, what="the supervisor connected to the PLC")
+        await stack.kill("plc")
+        active = sup.get_node(ua.NodeId(f"{cond}.ActiveState.Id", idx))
+        await wait_until(active.read_value, 60, what="PlcLinkLost active")
+
+    # The PLC is down: one line says so, the supervisor's alarms are still listed (exit 0).
+    r = await tankctl("alarms", "--json", base=base)
+    assert r.returncode == 0, r.stderr
+    (line,) = r.stderr.strip().splitlines()
+    assert line.startswith(f"tankctl: cannot reach plc at {stack.plc_url}") and "not listed" in line
+    rows = {row["name"]: row for row in json.loads(r.stdout)}
+    lost = rows["PlcLinkLost"]
+    assert (lost["tier"], lost["state"], lost["priority"]) == ("supervisor", "ACTIVE UNACK", "HIGH")
+
+    r = await tankctl("ack", "PlcLinkLost", "--comment", "PLC restarting", base=base)
+    assert r.returncode == 0, r.stderr
+    assert (
+        r.stdout == "PlcLinkLost: acknowledged, comment 'PLC restarting' (was ACTIVE UNACK; now ACTIVE ACK)\n"
+    )
+
+    # Both tiers up: every condition of both, in tier order, with the TIER column.
+    await stack.start("plc")
+    async with await secure(stack.supervisor_url) as sup:
+        idx = await sup.get_namespace_index(NAMESPACE_URI)
+        active = sup.get_node(ua.NodeId(f"{cond}.ActiveState.Id", idx))
+
+        async def normal() -> bool:
+            return not await active.read_value()
+
+        await wait_until(normal, 60, what="PlcLinkLost back to normal")
+    r = await tankctl("alarms", "--all", "--json", base=base)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    every = json.loads(r.stdout)
+    tiers = [row["tier"] for row in every]
+    assert tiers == sorted(tiers, key=["plc", "supervisor"].index) and set(tiers) == {"plc", "supervisor"}
+    by_name = {row["name"]: row for row in every}
+    assert by_name["T1Level"]["tier"] == "plc"
+    assert by_name["PlcLinkLost"]["state"] == "RTN ACK" and by_name["PlcLinkLost"]["standing"] is False
+    r = await tankctl("alarms", "--all", base=base)
+    assert r.returncode == 0, r.stderr
+    table = r.stdout.splitlines()
+    assert table[0].split()[:2] == ["TIER", "NAME"]
+    assert any(row.split()[:2] == ["supervisor", "MpcFailing"] for row in table[1:])
+
+    r = await tankctl("shelve", "supervisor/MpcFailing", "--for", "1h", base=base)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.endswith("(was RTN ACK; now RTN ACK SHELVED, TimedShelved)\n")
+    r = await tankctl("unshelve", "mpcfailing", base=base)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == "MpcFailing: unshelved (was RTN ACK SHELVED, TimedShelved; now RTN ACK)\n"
+    r = await tankctl("ack", "plc/PlcLinkLost", base=base)
+    assert r.returncode == 2 and "unknown alarm 'plc/PlcLinkLost' (the PLC has T1Level" in r.stderr
+
+    # The supervisor down: the PLC's alarms are still listed.
+    await stack.kill("supervisor")
+    r = await tankctl("alarms", "--all", "--json", base=base)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.strip().startswith(f"tankctl: cannot reach supervisor at {stack.supervisor_url}")
+    assert {row["tier"] for row in json.loads(r.stdout)} == {"plc"}

@@ -28,6 +28,7 @@ from tanklab.alarms.model import LimitState
 from tanklab.config import load_site
 from tanklab.tags import NAMESPACE_URI
 from tanklab_testing.condition_events import Events, event_filter
+from tanklab_testing.condition_events import refresh as condition_refresh
 from tanklab_testing.procs import free_base_port
 from tanklab_testing.sites import site_config
 from tanklab_testing.stack import Stack
@@ -53,9 +54,6 @@ FIELDS = (
     "LimitState/CurrentState",
 )
 ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
-REFRESH = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
-REFRESH_START = ua.NodeId(ua.ObjectIds.RefreshStartEventType)
-REFRESH_END = ua.NodeId(ua.ObjectIds.RefreshEndEventType)
 
 
 async def subscribe(client: Client, events: Events) -> Any:
@@ -89,19 +87,7 @@ def acknowledge(event_id: bytes, comment: str = "") -> tuple[ua.Variant, ua.Vari
 async def refresh(client: Client, condition: ua.NodeId) -> list[dict[str, Any]]:
     """ConditionRefresh on a fresh Server subscription: the events between RefreshStart and
     RefreshEnd (both received)."""
-    events = Events()
-    sub = await subscribe(client, events)
-    sub_id = ua.Variant(sub.subscription_id, ua.VariantType.UInt32)
-    assert await call(client, ua.NodeId(ua.ObjectIds.ConditionType), REFRESH, sub_id) == "Good"
-
-    def types() -> list[Any]:
-        return [e.get("EventType") for e in events.items]
-
-    await wait_until(lambda: REFRESH_END in types(), 20, what="RefreshEnd")
-    got = types()
-    start, end = got.index(REFRESH_START), got.index(REFRESH_END)
-    await sub.delete()
-    return [e for e in events.items[start + 1 : end] if e.get("NodeId") == condition]
+    return await condition_refresh(client, condition, FIELDS)
 
 
 @pytest.fixture

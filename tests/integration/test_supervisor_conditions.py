@@ -6,6 +6,12 @@ runs; when the PLC process is killed it receives PlcLinkLost active (HIGH Severi
 retained); when the PLC is restarted the condition returns to normal (still unacknowledged, so
 retained), and its EventId acknowledges it.
 
+With the retentive memory on (``--retain-file``, as under ``tankctl up``): PlcLinkLost raised by
+the PLC's death and acknowledged survives a crash (SIGKILL) and restart of the supervisor: the
+new process shows it active and acknowledged with its comment, ConditionRefresh reports it with
+an EventId of the new process, and it returns to normal (no longer retained) when the PLC comes
+back.
+
 Waits are on events (``wait_until``), never on elapsed time.
 """
 
@@ -21,7 +27,7 @@ from helpers import secure, wait_until
 from tanklab import paths
 from tanklab.alarms import Priority, names
 from tanklab.tags import NAMESPACE_URI
-from tanklab_testing.condition_events import Events, event_filter
+from tanklab_testing.condition_events import Events, event_filter, refresh
 from tanklab_testing.procs import free_base_port
 from tanklab_testing.sites import site_config
 from tanklab_testing.stack import Stack
@@ -84,4 +90,67 @@ async def test_plc_link_lost_is_raised_when_the_plc_dies_and_clears_when_it_retu
         assert await call(op, cid, ACK, event_id, comment) == "Good"
         await wait_until(lambda: events.of(cid)[-1]["Retain"] is False, 20, what="the acknowledged event")
         assert events.of(cid)[-1]["AckedState/Id"] is True
+        await sub.delete()
+
+
+@pytest.fixture
+async def retentive(tmp_path: Path) -> AsyncIterator[Stack]:
+    config = site_config(tmp_path / "site.yaml", at_operating_point=True)
+    args = {"supervisor": ("--retain-file", str(tmp_path / "supervisor-retain.json"))}
+    s = Stack(config, free_base_port(3), speed=20.0, state_file=tmp_path / "plant.json", tier_args=args)
+    try:
+        await s.up()
+        yield s
+    finally:
+        await s.down()
+
+
+async def test_an_acknowledged_plc_link_lost_survives_a_supervisor_restart(retentive: Stack) -> None:
+    stack = retentive
+    cond = paths.condition("supervisor", names.PLC_LINK_LOST)
+    async with await secure(stack.supervisor_url, "operator") as op:
+        idx = await op.get_namespace_index(NAMESPACE_URI)
+        cid = ua.NodeId(cond, idx)
+        connected = op.get_node(ua.NodeId(paths.supervisor.plc_connected, idx))
+        active = op.get_node(ua.NodeId(f"{cond}.ActiveState.Id", idx))
+        acked = op.get_node(ua.NodeId(f"{cond}.AckedState.Id", idx))
+        await wait_until(connected.read_value, 60, what="the supervisor connected to the PLC")
+        await stack.kill("plc")
+        await wait_until(active.read_value, 60, what="PlcLinkLost active")
+        event_id = await op.get_node(ua.NodeId(f"{cond}.EventId", idx)).read_value()
+        comment = ua.Variant(ua.LocalizedText("PLC down, on it"), ua.VariantType.LocalizedText)
+        assert await call(op, cid, ACK, ua.Variant(event_id, ua.VariantType.ByteString), comment) == "Good"
+        assert await acked.read_value() is True
+
+    # A crash: the call's answer came after the retentive memory was written.
+    await stack.kill("supervisor")
+    await stack.start("supervisor")
+    async with await secure(stack.supervisor_url, "operator") as op:
+        idx = await op.get_namespace_index(NAMESPACE_URI)
+        cid = ua.NodeId(cond, idx)
+
+        async def read(field: str) -> object:
+            return await op.get_node(ua.NodeId(f"{cond}.{field}", idx)).read_value()
+
+        assert await read("ActiveState.Id") is True  # the PLC is still down
+        assert await read("AckedState.Id") is True
+        assert await read("Retain") is True
+        assert (await read("Comment")).Text == "PLC down, on it"  # type: ignore[attr-defined]
+        assert (await read("ClientUserId")) == "operator"
+        (restored,) = await refresh(op, cid, FIELDS)
+        assert restored["ActiveState/Id"] is True and restored["AckedState/Id"] is True
+        assert restored["EventId"] != event_id and restored["EventId"] == await read("EventId")
+        assert restored["Severity"] == int(Priority.HIGH)
+
+        events = Events()
+        sub = await op.create_subscription(100, events)
+        await sub.subscribe_events(
+            ua.ObjectIds.Server, ua.ObjectIds.BaseEventType, evfilter=event_filter(FIELDS)
+        )
+        await stack.start("plc")
+        await wait_until(
+            lambda: any(e["ActiveState/Id"] is False for e in events.of(cid)), 60, what="PlcLinkLost normal"
+        )
+        normal = next(e for e in events.of(cid) if e["ActiveState/Id"] is False)
+        assert normal["AckedState/Id"] is True and normal["Retain"] is False  # nothing left to acknowledge
         await sub.delete()

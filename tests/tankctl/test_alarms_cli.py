@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from pathlib import Path
 
 import pytest
 from asyncua import ua
@@ -13,15 +14,17 @@ from tankctl.cli import app
 from tankctl.ops.alarms import (
     LIMIT_FIELD,
     STATE_FIELDS,
+    TierAlarms,
     child,
     condition_rows,
+    find,
     known,
     parse_duration_ms,
     read_paths,
     render_rows,
 )
 from tankctl.ops.errors import UsageError
-from tanklab.alarms.definitions import plc_alarms
+from tanklab.alarms.definitions import plc_alarms, supervisor_alarms
 from tanklab.alarms.model import ConditionKind
 from tanklab.config import load_site
 
@@ -112,8 +115,9 @@ def test_standing_rows_their_states_and_every_row_with_all() -> None:
 def test_the_table_has_a_header_and_one_line_per_row() -> None:
     rows = condition_rows(DEFS, _values("T1Level", active=True, acked=False, retain=True))
     lines = render_rows(rows).splitlines()
-    assert lines[0].split() == ["NAME", "PRIORITY", "STATE", "LIMIT", "SINCE", "MESSAGE"]
+    assert lines[0].split() == ["TIER", "NAME", "PRIORITY", "STATE", "LIMIT", "SINCE", "MESSAGE"]
     assert lines[1].split() == [
+        "plc",
         "T1Level",
         "HIGH",
         "(700)",
@@ -153,3 +157,74 @@ def test_an_unknown_alarm_is_exit_2_with_the_known_names_before_connecting() -> 
     r = CliRunner().invoke(app, ["ack", "T9Level", "--config", config, "--base-port", "1"])
     assert r.exit_code == 2
     assert "unknown alarm 'T9Level' (the PLC has T1Level" in r.output
+
+
+# ---- both tiers (the supervisor's conditions too) ----------------------------------------------
+
+SUP = supervisor_alarms(SITE)
+TIERS = [TierAlarms("plc", DEFS), TierAlarms("supervisor", SUP)]
+CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
+def test_condition_names_are_unique_across_the_tiers_of_every_shipped_site(path: Path) -> None:
+    site = load_site(path)
+    plc = {d.name.lower() for d in plc_alarms(site)} if site.plc is not None else set()
+    sup = {d.name.lower() for d in supervisor_alarms(site)} if site.supervisor is not None else set()
+    assert not plc & sup
+
+
+def test_a_name_finds_its_tier_and_a_tier_prefix_looks_there_only() -> None:
+    tier, d = find(TIERS, "plclinklost")
+    assert (tier.tier, d.name) == ("supervisor", "PlcLinkLost")
+    assert find(TIERS, "T1Level")[0].tier == "plc"
+    assert find(TIERS, "supervisor/MpcFailing")[1].name == "MpcFailing"
+    assert find(TIERS, " PLC / IoFault ")[0].tier == "plc"
+    with pytest.raises(UsageError, match=r"unknown alarm 'plc/MpcFailing' \(the PLC has T1Level"):
+        find(TIERS, "plc/MpcFailing")
+    with pytest.raises(
+        UsageError, match=r"unknown tier 'plant' in 'plant/T1Level' \(alarms are on plc, supervisor\)"
+    ):
+        find(TIERS, "plant/T1Level")
+    with pytest.raises(UsageError, match=r"\(the PLC has T1Level, .*; the supervisor has MpcFailing, "):
+        find(TIERS, "T9Level")
+
+
+def test_a_name_on_two_tiers_is_never_guessed() -> None:
+    twice = [TierAlarms("plc", DEFS), TierAlarms("supervisor", DEFS)]
+    with pytest.raises(UsageError, match=r"on more than one tier: give plc/IoFault or supervisor/IoFault"):
+        find(twice, "IoFault")
+    assert find(twice, "supervisor/IoFault")[0].tier == "supervisor"
+
+
+def test_supervisor_rows_read_its_own_nodes_and_carry_the_tier() -> None:
+    nodes = read_paths(SUP, "supervisor")
+    assert child("PlcLinkLost", "AckedState/Id", "supervisor") in nodes
+    assert all(n.startswith("Supervisor.Conditions.") for n in nodes)
+    assert not any(n.endswith(LIMIT_FIELD.replace("/", ".")) for n in nodes)  # discrete alarms only
+    values = {
+        child("PlcLinkLost", f, "supervisor"): v
+        for f, v in {
+            "Severity": 700,
+            "Message": ua.LocalizedText("PLC link lost"),
+            "Retain": True,
+            "ActiveState/Id": True,
+            "AckedState/Id": True,
+        }.items()
+    }
+    (row,) = condition_rows(SUP, values, tier="supervisor")
+    assert (row.tier, row.name, row.state, row.priority) == (
+        "supervisor",
+        "PlcLinkLost",
+        "ACTIVE ACK",
+        "HIGH",
+    )
+    assert row.as_json()["tier"] == "supervisor"
+    assert render_rows([row]).splitlines()[1].split()[:2] == ["supervisor", "PlcLinkLost"]
+
+
+def test_an_unknown_alarm_names_both_tiers_before_connecting() -> None:
+    config = str(ROOT / "configs/three_tank_energies_sim.yaml")
+    r = CliRunner().invoke(app, ["unshelve", "Nope", "--config", config, "--base-port", "1"])
+    assert r.exit_code == 2
+    assert "; the supervisor has MpcFailing, AdaptationUnhealthy, PlcLinkLost)" in r.output

@@ -1,11 +1,19 @@
-"""Alarms: ``alarms`` (the PLC's conditions, one Read), ``ack``, ``shelve``, ``unshelve`` (issue 15).
+"""Alarms: ``alarms`` (both tiers' conditions, one Read per tier), ``ack``, ``shelve``,
+``unshelve`` (issue 15).
 
-The PLC's alarms are OPC UA Part 9 conditions (docs/alarms.md): ``PLC.Conditions.<name>``
-(:func:`tanklab.paths.condition`), their state variables its children (``<id>.AckedState.Id``,
-:mod:`tanklab_io.conditions.fields`), their methods too (``<id>.Acknowledge``,
-``<id>.ShelvingState.TimedShelve``). The names come from the site (:func:`plc_alarms`), so a
-name is checked before anything is sent and ``tankctl alarms`` reads every condition's state
-in one Read, with no event subscription.
+The PLC's and the supervisor's alarms are OPC UA Part 9 conditions (docs/alarms.md):
+``PLC.Conditions.<name>`` and ``Supervisor.Conditions.<name>`` (:func:`tanklab.paths.condition`),
+their state variables its children (``<id>.AckedState.Id``, :mod:`tanklab_io.conditions.fields`),
+their methods too (``<id>.Acknowledge``, ``<id>.ShelvingState.TimedShelve``). The names come from
+the site (:func:`plc_alarms`, :func:`supervisor_alarms`), so a name is checked, and its tier found,
+before anything is sent, and ``tankctl alarms`` reads every condition's state in one Read per
+tier (the two tiers at once), with no event subscription. A tier that does not answer is one
+line on stderr; the other tier's alarms are still listed.
+
+Condition names are unique across the tiers (the PLC's: ``T1Level``, ``LIC1PvBad``, ``IoFault``,
+``SupervisorLost``, ``T1Trip``; the supervisor's: ``MpcFailing``, ``AdaptationUnhealthy``,
+``PlcLinkLost``; a unit test checks it on every shipped site), so ``ack NAME`` finds the tier by
+itself; ``plc/NAME`` or ``supervisor/NAME`` names the tier explicitly.
 
 Pure helpers (:func:`parse_duration_ms`, :func:`condition_rows`, :func:`render_rows`) do the
 parsing and formatting; the commands are thin shells around one Read and one Call.
@@ -13,6 +21,7 @@ parsing and formatting; the commands are thin shells around one Read and one Cal
 
 from __future__ import annotations
 
+import asyncio
 import json
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -24,13 +33,19 @@ import typer
 from asyncua import ua
 
 from tankctl.ops.client import TierClient
-from tankctl.ops.errors import UsageError
+from tankctl.ops.errors import UnreachableError, UsageError
 from tankctl.ops.options import JsonOpt, StackOptions, stack_command
 from tankctl.ops.run import check_usage, fail, run
 from tankctl.ops.stack import Stack
 from tanklab import paths
-from tanklab.alarms.definitions import plc_alarms
+from tanklab.alarms.definitions import plc_alarms, supervisor_alarms
 from tanklab.alarms.model import AlarmDefinition, ConditionKind, Priority, ShelvingState
+from tanklab.tags import Tier
+
+ALARM_TIERS: tuple[Tier, ...] = ("plc", "supervisor")
+"""The tiers with conditions, in the order ``tankctl alarms`` lists them."""
+TIER_NAMES: dict[Tier, str] = {"plant": "plant", "plc": "PLC", "supervisor": "supervisor"}
+"""How messages name a tier."""
 
 STATE_FIELDS: tuple[str, ...] = (
     "EventId",
@@ -68,9 +83,10 @@ def parse_duration_ms(text: str) -> float:
     return ms
 
 
-def child(name: str, field: str) -> str:
-    """The NodeId string of a PLC condition's child (``PLC.Conditions.T1Level.AckedState.Id``)."""
-    return f"{paths.condition('plc', name)}.{field.replace('/', '.')}"
+def child(name: str, field: str, tier: Tier = "plc") -> str:
+    """The NodeId string of a condition's child (``PLC.Conditions.T1Level.AckedState.Id``,
+    ``Supervisor.Conditions.PlcLinkLost.AckedState.Id``)."""
+    return f"{paths.condition(tier, name)}.{field.replace('/', '.')}"
 
 
 def fields_of(definition: AlarmDefinition) -> tuple[str, ...]:
@@ -80,15 +96,17 @@ def fields_of(definition: AlarmDefinition) -> tuple[str, ...]:
     return STATE_FIELDS
 
 
-def read_paths(definitions: Sequence[AlarmDefinition]) -> list[str]:
-    """Every state variable of every condition: the nodes of the one Read."""
-    return [child(d.name, f) for d in definitions for f in fields_of(d)]
+def read_paths(definitions: Sequence[AlarmDefinition], tier: Tier = "plc") -> list[str]:
+    """Every state variable of every condition of ``tier``: the nodes of its one Read."""
+    return [child(d.name, f, tier) for d in definitions for f in fields_of(d)]
 
 
 @dataclass(frozen=True)
 class AlarmRow:
     """One condition's state as ``tankctl alarms`` shows it (``--json``: these keys)."""
 
+    tier: str
+    """The tier whose condition it is: ``plc`` or ``supervisor``."""
     name: str
     priority: str
     """The ISA-18.2 priority of the current Severity (LOW/MEDIUM/HIGH/URGENT), else ``""``."""
@@ -149,15 +167,16 @@ def priority_name(severity: Any) -> str:
         return ""
 
 
-def condition_row(definition: AlarmDefinition, values: Mapping[str, Any]) -> AlarmRow:
+def condition_row(definition: AlarmDefinition, values: Mapping[str, Any], tier: Tier = "plc") -> AlarmRow:
     """One row from the Read's values (keyed by :func:`child` NodeId strings; None = Bad)."""
 
     def v(field: str) -> Any:
-        return values.get(child(definition.name, field))
+        return values.get(child(definition.name, field, tier))
 
     severity = v("Severity")
     is_level = definition.kind == ConditionKind.EXCLUSIVE_LEVEL
     return AlarmRow(
+        tier=tier,
         name=definition.name,
         priority=priority_name(severity),
         severity=int(severity) if severity is not None else None,
@@ -173,14 +192,18 @@ def condition_row(definition: AlarmDefinition, values: Mapping[str, Any]) -> Ala
 
 
 def condition_rows(
-    definitions: Sequence[AlarmDefinition], values: Mapping[str, Any], *, every: bool = False
+    definitions: Sequence[AlarmDefinition],
+    values: Mapping[str, Any],
+    *,
+    every: bool = False,
+    tier: Tier = "plc",
 ) -> list[AlarmRow]:
-    """The rows ``tankctl alarms`` shows: the standing ones, or ``every`` condition."""
-    rows = [condition_row(d, values) for d in definitions]
+    """The rows ``tankctl alarms`` shows of one tier: the standing ones, or ``every`` condition."""
+    rows = [condition_row(d, values, tier) for d in definitions]
     return rows if every else [r for r in rows if r.standing]
 
 
-COLUMNS = ("NAME", "PRIORITY", "STATE", "LIMIT", "SINCE", "MESSAGE")
+COLUMNS = ("TIER", "NAME", "PRIORITY", "STATE", "LIMIT", "SINCE", "MESSAGE")
 
 
 def render_rows(rows: Sequence[AlarmRow], *, every: bool = False) -> str:
@@ -189,6 +212,7 @@ def render_rows(rows: Sequence[AlarmRow], *, every: bool = False) -> str:
         return "no conditions" if every else "no standing alarms"
     table = [COLUMNS] + [
         (
+            r.tier,
             r.name,
             f"{r.priority} ({r.severity})"
             if r.priority
@@ -210,23 +234,79 @@ def render_rows(rows: Sequence[AlarmRow], *, every: bool = False) -> str:
 # ---- the commands ---------------------------------------------------------------------------
 
 
-def definitions_of(stack: Stack) -> tuple[AlarmDefinition, ...]:
-    """The PLC's conditions for the stack's site (UsageError if the site has no PLC)."""
-    stack.require("plc")
-    return plc_alarms(stack.site)
+@dataclass(frozen=True)
+class TierAlarms:
+    """One tier's conditions (its definitions, in the tier's order)."""
+
+    tier: Tier
+    definitions: tuple[AlarmDefinition, ...]
 
 
-def known(definitions: Sequence[AlarmDefinition], name: str) -> AlarmDefinition:
-    """The condition called ``name`` (case-insensitive), else UsageError naming every one."""
-    for d in definitions:
-        if d.name.lower() == name.strip().lower():
-            return d
-    have = ", ".join(d.name for d in definitions) or "none"
-    raise UsageError(f"unknown alarm {name!r} (the PLC has {have})")
+def alarm_tiers(stack: Stack) -> list[TierAlarms]:
+    """The tiers of the stack's site that have conditions, PLC first (UsageError if none)."""
+    site = stack.site
+    out = []
+    if stack.has("plc"):
+        out.append(TierAlarms("plc", plc_alarms(site)))
+    if stack.has("supervisor"):
+        out.append(TierAlarms("supervisor", supervisor_alarms(site)))
+    if not out:
+        raise UsageError(f"the site {site.name} has no alarms (no plc or supervisor section)")
+    return out
 
 
-async def read_rows(plc: TierClient, definitions: Sequence[AlarmDefinition], every: bool) -> list[AlarmRow]:
-    return condition_rows(definitions, await plc.read(read_paths(definitions)), every=every)
+def find(tiers: Sequence[TierAlarms], name: str) -> tuple[TierAlarms, AlarmDefinition]:
+    """The condition called ``name`` (case-insensitive; ``plc/NAME`` or ``supervisor/NAME``
+    looks on that tier only) and its tier, else UsageError naming every one, per tier."""
+    text = name.strip()
+    among = list(tiers)
+    if "/" in text:
+        prefix, text = (part.strip() for part in text.split("/", 1))
+        among = [t for t in tiers if t.tier == prefix.lower()]
+        if not among:
+            have = ", ".join(t.tier for t in tiers)
+            raise UsageError(f"unknown tier {prefix!r} in {name!r} (alarms are on {have})")
+    found = [(t, d) for t in among for d in t.definitions if d.name.lower() == text.lower()]
+    if len(found) == 1:
+        return found[0]
+    if found:  # not with the shipped names (unique across tiers), but never a guess
+        qualified = " or ".join(f"{t.tier}/{d.name}" for t, d in found)
+        raise UsageError(f"alarm {name!r} is on more than one tier: give {qualified}")
+    have = "; ".join(
+        f"the {TIER_NAMES[t.tier]} has {', '.join(d.name for d in t.definitions) or 'none'}" for t in among
+    )
+    raise UsageError(f"unknown alarm {name!r} ({have})")
+
+
+def known(definitions: Sequence[AlarmDefinition], name: str, tier: Tier = "plc") -> AlarmDefinition:
+    """The condition of one tier called ``name`` (case-insensitive), else UsageError naming
+    every one (:func:`find` over that tier alone)."""
+    return find([TierAlarms(tier, tuple(definitions))], name)[1]
+
+
+async def read_rows(
+    client: TierClient, definitions: Sequence[AlarmDefinition], every: bool, tier: Tier = "plc"
+) -> list[AlarmRow]:
+    values = await client.read(read_paths(definitions, tier))
+    return condition_rows(definitions, values, every=every, tier=tier)
+
+
+async def _tier_rows(stack: Stack, t: TierAlarms, every: bool) -> list[AlarmRow] | UnreachableError:
+    """One tier's rows from its one Read (with the identity, when not connected yet), or why
+    the tier did not answer."""
+    nodes = read_paths(t.definitions, t.tier)
+    try:
+        async with stack.client(t.tier).will_read(nodes) as client:
+            return await read_rows(client, t.definitions, every, t.tier)
+    except UnreachableError as e:
+        return e
+
+
+async def collect_rows(stack: Stack, every: bool) -> tuple[list[AlarmRow], list[UnreachableError]]:
+    """Every alarm tier's rows (the tiers read at once), in tier order, and the tiers down."""
+    results = await asyncio.gather(*(_tier_rows(stack, t, every) for t in alarm_tiers(stack)))
+    rows = [r for res in results if not isinstance(res, UnreachableError) for r in res]
+    return rows, [res for res in results if isinstance(res, UnreachableError)]
 
 
 @stack_command
@@ -238,19 +318,21 @@ def alarms(
     *,
     options: StackOptions,
 ) -> None:
-    """The PLC's standing alarms (active or unacknowledged): priority, state, limit, since, message."""
+    """The standing alarms (active or unacknowledged) of the PLC and the supervisor: tier,
+    priority, state, limit, since, message. A tier that is down is one line on stderr (exit 0
+    while another tier answers, 2 when none does)."""
     stack = options.stack()
 
     async def main() -> int:
-        await stack.resolve("plc")
-        defs = definitions_of(stack)
-        async with stack.client("plc").will_read(read_paths(defs)) as plc:
-            rows = await read_rows(plc, defs, every)
+        await stack.resolve("plc", "supervisor")
+        rows, down = await collect_rows(stack, every)
         if json_out:
             typer.echo(json.dumps([r.as_json() for r in rows], indent=2))
         else:
             typer.echo(render_rows(rows, every=every))
-        return 0
+        for e in down:
+            typer.echo(f"tankctl: {e} (its alarms are not listed)", err=True)
+        return 2 if down and len(down) == len(alarm_tiers(stack)) else 0
 
     run(main)
 
@@ -263,7 +345,8 @@ def _one_line(row: AlarmRow) -> str:
 
 
 Arguments = Callable[[AlarmDefinition, Mapping[str, Any]], tuple[list[ua.Variant], str]]
-"""The call's arguments and how they are shown, from the condition's state read just before."""
+"""The call's arguments and how they are shown, from the condition's state read just before
+(keyed by field path: ``EventId``, ``AckedState/Id``)."""
 
 
 def _no_arguments(definition: AlarmDefinition, values: Mapping[str, Any]) -> tuple[list[ua.Variant], str]:
@@ -271,25 +354,32 @@ def _no_arguments(definition: AlarmDefinition, values: Mapping[str, Any]) -> tup
 
 
 async def _call_and_tell(stack: Stack, name: str, method: str, arguments: Arguments, verb: str) -> None:
-    """Read the condition's state (one Read), call ``method`` (a child path below it) with
-    ``arguments(state)``, read it again and print ``NAME: VERB (was STATE; now STATE)``; a Bad
-    status is a CallRefusedError (one line, exit 1), an unknown name a UsageError (exit 2)."""
-    await stack.resolve("plc")
-    d = known(definitions_of(stack), name)
-    nodes = [child(d.name, f) for f in fields_of(d)]
-    async with stack.client("plc").will_read(nodes) as plc:
-        values = await plc.read(nodes)
-        variants, shown = arguments(d, values)
-        await plc.call_variants(child(d.name, method), variants, shown)
-        after = condition_row(d, await plc.read(nodes))
-    typer.echo(f"{d.name}: {verb} (was {_one_line(condition_row(d, values))}; now {_one_line(after)})")
+    """Find the condition's tier, read its state (one Read), call ``method`` (a child path below
+    it) with ``arguments(state)``, read it again and print ``NAME: VERB (was STATE; now STATE)``;
+    a Bad status is a CallRefusedError (one line, exit 1), an unknown name a UsageError (exit 2)."""
+    await stack.resolve("plc", "supervisor")
+    t, d = find(alarm_tiers(stack), name)
+    nodes = [child(d.name, f, t.tier) for f in fields_of(d)]
+    async with stack.client(t.tier).will_read(nodes) as client:
+        values = await client.read(nodes)
+        variants, shown = arguments(d, {_field_of(d, t.tier, k): v for k, v in values.items()})
+        await client.call_variants(child(d.name, method, t.tier), variants, shown)
+        after = condition_row(d, await client.read(nodes), t.tier)
+    before = condition_row(d, values, t.tier)
+    typer.echo(f"{d.name}: {verb} (was {_one_line(before)}; now {_one_line(after)})")
+
+
+def _field_of(d: AlarmDefinition, tier: Tier, node: str) -> str:
+    """A read node's field path (``AckedState/Id``) from its NodeId string."""
+    return node.removeprefix(paths.condition(tier, d.name) + ".").replace(".", "/")
 
 
 def acknowledge_arguments(comment: str) -> Arguments:
-    """Acknowledge's (EventId ByteString, Comment LocalizedText), the EventId the latest read."""
+    """Acknowledge's (EventId ByteString, Comment LocalizedText), the EventId the latest read
+    (``values`` keyed by field path, ``EventId``)."""
 
     def arguments(d: AlarmDefinition, values: Mapping[str, Any]) -> tuple[list[ua.Variant], str]:
-        event_id = values.get(child(d.name, "EventId"))
+        event_id = values.get("EventId")
         raw = event_id if isinstance(event_id, bytes) else b""
         variants = [
             ua.Variant(raw, ua.VariantType.ByteString),
@@ -302,7 +392,9 @@ def acknowledge_arguments(comment: str) -> Arguments:
 
 @stack_command
 def ack(
-    name: Annotated[str, typer.Argument(help="Condition, e.g. T1Level (see tankctl alarms --all).")],
+    name: Annotated[
+        str, typer.Argument(help="Condition, e.g. T1Level or PlcLinkLost (see tankctl alarms --all).")
+    ],
     comment: Annotated[str, typer.Option(help="Comment stored with the acknowledgement.")] = "",
     *,
     options: StackOptions,

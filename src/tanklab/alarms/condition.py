@@ -131,7 +131,7 @@ class Condition:
         self.definition = definition
         self.ids = ids
         self.max_shelving_time_s = float(max_shelving_time_s)
-        self.enabled = True
+        self.enabled = definition.enabled
         self.active = False
         self.limit: LimitState | None = None
         self.acked = True

@@ -10,14 +10,14 @@ its trip (``T1Trip``, OffNormal, latched, to be confirmed). Overrides come from
 
 The supervisor's own alarms (:func:`supervisor_alarms`, docs/alarms.md section 9): ``MpcFailing``,
 ``AdaptationUnhealthy`` (only with a gain adapter) and ``PlcLinkLost``, all Discrete, with the
-priorities of :data:`SUPERVISOR_PRIORITIES`.
+priorities of :data:`SUPERVISOR_PRIORITIES` unless ``supervisor.alarms.overrides`` says otherwise.
 """
 
 from __future__ import annotations
 
 from tanklab import paths
 from tanklab.alarms import names
-from tanklab.alarms.manager import AlarmManager
+from tanklab.alarms.manager import DEFAULT_MAX_SHELVING_TIME_S, AlarmManager
 from tanklab.alarms.model import AlarmDefinition, ConditionKind, Priority
 from tanklab.config import SiteConfig
 from tanklab.config.plc import AlarmOverride
@@ -31,6 +31,7 @@ __all__ = [
     "plc_manager",
     "supervisor_alarms",
     "supervisor_manager",
+    "supervisor_max_shelving_time_s",
 ]
 
 DEADBAND_FRACTION = 0.02
@@ -97,6 +98,7 @@ def _level(site: SiteConfig, tank: str, o: AlarmOverride) -> AlarmDefinition:
             paths.plc.alarm(tank, "L"),
             None,
         ),
+        enabled=o.enabled,
     )
 
 
@@ -127,6 +129,7 @@ def _discrete(
         confirm=confirm,
         suppress_when_manual=suppress_when_manual,
         boolean_path=boolean_path,
+        enabled=o.enabled,
     )
 
 
@@ -213,9 +216,11 @@ def plc_manager(site: SiteConfig, *, event_prefix: bytes = b"") -> AlarmManager:
     )
 
 
-def supervisor_alarms(site: SiteConfig, *, adaptation: bool) -> tuple[AlarmDefinition, ...]:
+def supervisor_alarms(site: SiteConfig, *, adaptation: bool | None = None) -> tuple[AlarmDefinition, ...]:
     """The supervisor's alarm definitions, in order: MpcFailing, AdaptationUnhealthy (only with
-    ``adaptation``: the supervisor has a gain adapter, every loop a PID loop), PlcLinkLost.
+    ``adaptation``: the supervisor has a gain adapter, every loop a PID loop; None: as the site
+    says, ``SiteConfig.supervisor_adapts_gains``), PlcLinkLost, with the overrides of
+    ``supervisor.alarms.overrides`` (priority, delays, enabled; checked by the site config).
 
     Raises
     ------
@@ -224,46 +229,58 @@ def supervisor_alarms(site: SiteConfig, *, adaptation: bool) -> tuple[AlarmDefin
     """
     if site.supervisor is None:
         raise ValueError(f"site {site.name!r} has no supervisor section")
+    if adaptation is None:
+        adaptation = site.supervisor_adapts_gains
     sup = paths.supervisor
-    out = [
-        AlarmDefinition(
-            name=names.MPC_FAILING,
-            kind=ConditionKind.DISCRETE,
-            source=sup.mpc,
-            message="MPC failing (plan held)",
-            priority=SUPERVISOR_PRIORITIES[names.MPC_FAILING],
-            input_path=sup.mpc_status,
-        )
+    over = site.supervisor.alarms.overrides
+    none = AlarmOverride()
+    rows: list[tuple[str, str, str, str | None]] = [
+        (names.MPC_FAILING, sup.mpc, "MPC failing (plan held)", sup.mpc_status)
     ]
     if adaptation:
-        out.append(
-            AlarmDefinition(
-                name=names.ADAPTATION_UNHEALTHY,
-                kind=ConditionKind.DISCRETE,
-                source=sup.rls_root,
-                message="Gain adaptation unhealthy (last gain set rejected)",
-                priority=SUPERVISOR_PRIORITIES[names.ADAPTATION_UNHEALTHY],
+        rows.append(
+            (
+                names.ADAPTATION_UNHEALTHY,
+                sup.rls_root,
+                "Gain adaptation unhealthy (last gain set rejected)",
+                None,
             )
         )
-    out.append(
-        AlarmDefinition(
-            name=names.PLC_LINK_LOST,
-            kind=ConditionKind.DISCRETE,
-            source=sup.plc_link,
-            message="PLC link lost",
-            priority=SUPERVISOR_PRIORITIES[names.PLC_LINK_LOST],
-            input_path=sup.plc_connected,
+    rows.append((names.PLC_LINK_LOST, sup.plc_link, "PLC link lost", sup.plc_connected))
+    out = []
+    for name, source, message, input_path in rows:
+        o = over.get(name, none)
+        out.append(
+            AlarmDefinition(
+                name=name,
+                kind=ConditionKind.DISCRETE,
+                source=source,
+                message=message,
+                priority=SUPERVISOR_PRIORITIES[name] if o.priority is None else Priority[o.priority],
+                input_path=input_path,
+                on_delay_s=o.on_delay_s,
+                off_delay_s=o.off_delay_s,
+                enabled=o.enabled,
+            )
         )
-    )
     return tuple(out)
 
 
-def supervisor_manager(site: SiteConfig, *, adaptation: bool, event_prefix: bytes = b"") -> AlarmManager:
-    """An :class:`AlarmManager` over :func:`supervisor_alarms` with the site's maximum shelving
-    time (the ``plc.alarms`` one: one alarm philosophy per site; the core's default without it)."""
+def supervisor_max_shelving_time_s(site: SiteConfig) -> float:
+    """The supervisor's longest shelving [s]: ``supervisor.alarms.max_shelving_time_s``, else the
+    ``plc.alarms`` one (one alarm philosophy per site), else the core's default."""
+    own = site.supervisor.alarms.max_shelving_time_s if site.supervisor is not None else None
+    if own is not None:
+        return own
+    return site.plc.alarms.max_shelving_time_s if site.plc is not None else DEFAULT_MAX_SHELVING_TIME_S
+
+
+def supervisor_manager(
+    site: SiteConfig, *, adaptation: bool | None = None, event_prefix: bytes = b""
+) -> AlarmManager:
+    """An :class:`AlarmManager` over :func:`supervisor_alarms` with
+    :func:`supervisor_max_shelving_time_s`."""
     defs = supervisor_alarms(site, adaptation=adaptation)
-    if site.plc is None:
-        return AlarmManager(defs, event_prefix=event_prefix)
     return AlarmManager(
-        defs, event_prefix=event_prefix, max_shelving_time_s=site.plc.alarms.max_shelving_time_s
+        defs, event_prefix=event_prefix, max_shelving_time_s=supervisor_max_shelving_time_s(site)
     )

@@ -123,6 +123,8 @@ class AlarmDefinition:
         order of ``limits_m``, each None when there is none (``T1HH``, ``T1H``, ``T1L``, None). Each
         is its limit's own comparison (with deadband) as the ActiveState was evaluated: High and
         Low only with a good reading, HighHigh on any finite one (today's meaning).
+    enabled : the EnabledState at a cold start (a configured ``enabled: false``); a warm restart
+        restores the retained one.
     """
 
     name: str
@@ -141,6 +143,7 @@ class AlarmDefinition:
     suppress_when_manual: str | None = None
     boolean_path: str | None = None
     limit_boolean_paths: tuple[str | None, str | None, str | None, str | None] | None = None
+    enabled: bool = True
 
 
 @dataclass(frozen=True, slots=True)

@@ -185,7 +185,12 @@ LimitName = Literal["HighHigh", "High", "Low", "LowLow"]
 
 
 class AlarmOverride(Model):
-    """Overrides of one alarm's defaults (docs/alarms.md lists the alarms and their defaults)."""
+    """Overrides of one alarm's defaults (docs/alarms.md lists the alarms and their defaults).
+
+    The PLC's ``plc.alarms.overrides`` and the supervisor's ``supervisor.alarms.overrides`` share
+    this schema; the supervisor's alarms take ``priority``, ``on_delay_s``, ``off_delay_s`` and
+    ``enabled`` only (the site config says so, naming the field).
+    """
 
     priority: PriorityName | None = Field(
         None,
@@ -213,6 +218,11 @@ class AlarmOverride(Model):
     )
     low_low_m: NonNegFloat | None = Field(
         None, description="Level alarms: the LowLow limit [m], below the tank's low switch; null = none."
+    )
+    enabled: bool = Field(
+        True,
+        description="false: the condition starts disabled (EnabledState false) at a cold start; an "
+        "Engineer enables it with Enable. A warm restart keeps the retained state.",
     )
 
 

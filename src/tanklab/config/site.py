@@ -102,6 +102,7 @@ class SiteConfig(Model):
                         "supervisor.mode ADAPTIVE_PID needs supervisor.sample_time_s equal to "
                         "plc.scan_period_s (the adapter pairs every scan's PID move with the MPC's)"
                     )
+            self._check_supervisor_alarms()
         return self
 
     def _check_interlock(self, il: InterlockSpec) -> None:
@@ -157,6 +158,32 @@ class SiteConfig(Model):
             if o.suppress_when_manual and not any(lp.pv == "LT" + tank.name[1:] for lp in plc.loops):
                 raise ValueError(f"{where}: suppress_when_manual needs a loop on {tank.name}'s transmitter")
 
+    def _check_supervisor_alarms(self) -> None:
+        """Each supervisor override names one of the supervisor's alarms and sets only what a
+        discrete alarm without a loop has (priority, delays, enabled)."""
+        assert self.supervisor is not None
+        known = [alarm_names.MPC_FAILING]
+        if self.supervisor_adapts_gains:
+            known.append(alarm_names.ADAPTATION_UNHEALTHY)
+        known.append(alarm_names.PLC_LINK_LOST)
+        for name, o in self.supervisor.alarms.overrides.items():
+            where = f"supervisor.alarms.overrides.{name}"
+            if name not in known:
+                also = (
+                    " (AdaptationUnhealthy needs a gain adapter: every loop a PID loop)"
+                    if name == alarm_names.ADAPTATION_UNHEALTHY
+                    else ""
+                )
+                raise ValueError(f"{where}: unknown alarm (the supervisor's: {', '.join(known)}){also}")
+            level_only = ("limit_priorities", "deadband_m", "low_low_m")
+            set_here = [f for f in level_only if getattr(o, f) not in (None, {})]
+            if set_here:
+                raise ValueError(f"{where}: {', '.join(set_here)} apply to the PLC's level alarms only")
+            if o.suppress_when_manual:
+                raise ValueError(
+                    f"{where}: suppress_when_manual applies to the PLC's level and PvBad alarms only"
+                )
+
     # Convenience views used by tags and runtimes --------------------------------------------
 
     @property
@@ -178,6 +205,14 @@ class SiteConfig(Model):
     def loop_names(self) -> list[str]:
         """Loop tags in order (empty without a PLC program)."""
         return [lp.name for lp in self.plc.loops] if self.plc else []
+
+    @property
+    def supervisor_adapts_gains(self) -> bool:
+        """Whether the supervisor has a gain adapter: every PLC loop a PID loop with fixed gains
+        (``SupervisorCore.adapter``; the supervisor's AdaptationUnhealthy alarm exists only then)."""
+        return self.plc is not None and all(
+            lp.block == "pid" and lp.gains is not None for lp in self.plc.loops
+        )
 
     @property
     def supervisor_sample_scans(self) -> int:

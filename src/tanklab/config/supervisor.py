@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import Field
 
 from tanklab.config.base import Model, NonNegFloat, PositiveFloat
+from tanklab.config.plc import AlarmOverride
 from tanklab.enums import SupervisorMode
 
 
@@ -101,6 +102,22 @@ class AdaptationSpec(Model):
     )
 
 
+class SupervisorAlarmsConfig(Model):
+    """Alarm management of the supervisor's own conditions (docs/alarms.md section 9): the schema
+    of ``plc.alarms`` where it means something for them."""
+
+    max_shelving_time_s: PositiveFloat | None = Field(
+        None,
+        description="Longest shelving allowed, timed or one-shot, in model time [s]; null = "
+        "plc.alarms.max_shelving_time_s (one alarm philosophy per site).",
+    )
+    overrides: dict[str, AlarmOverride] = Field(
+        default_factory=dict,
+        description="Per-alarm overrides keyed by alarm name (MpcFailing, AdaptationUnhealthy, PlcLinkLost): "
+        "priority, on_delay_s, off_delay_s, enabled.",
+    )
+
+
 class SupervisorConfig(Model):
     """The SCADA level: MPC, adaptation and their cadence."""
 
@@ -116,6 +133,10 @@ class SupervisorConfig(Model):
     adaptation: AdaptationSpec = Field(default_factory=AdaptationSpec, description="Gain adaptation.")
     plc_stale_s: PositiveFloat = Field(
         5.0, description="Model seconds without a new PLC scan count before the PLC counts as lost."
+    )
+    alarms: SupervisorAlarmsConfig = Field(
+        default_factory=SupervisorAlarmsConfig,
+        description="Alarm management of the supervisor's conditions: per-alarm overrides, shelving.",
     )
 
     @property
