@@ -401,5 +401,9 @@ class PostgresStore:
         size += one(f"SELECT pg_total_relation_size('{s}.events') + pg_total_relation_size('{s}.tags')")
         return StoreStats(samples, events, tags, size)
 
+    def server_pid(self) -> int:
+        """The PID of this connection's PostgreSQL backend (the benchmark counts its CPU time)."""
+        return int(self._conn.info.backend_pid)
+
     def close(self) -> None:
         self._conn.close()
