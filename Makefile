@@ -48,20 +48,25 @@ typecheck: venv
 # dockerd that tests/system/test_docker_engine.py starts, on its own socket, and stops) and
 # debootstrap (that test's local base image: no registry is needed). Installed when missing and
 # running as root with apt-get (no daemon is started by the package here); otherwise say so, and
-# those tests skip.
+# those tests skip. postgresql-15: the binaries (initdb, pg_ctl) of the throw-away cluster the
+# historian's store tests run on (tanklab_testing.postgres); those tests fail without them, never
+# skip, so this target must install them.
+PG_BIN := /usr/lib/postgresql/15/bin
+
 tools:
 	@missing=""; \
 	command -v docker-compose >/dev/null 2>&1 || missing="$$missing docker-compose"; \
 	command -v dockerd >/dev/null 2>&1 || missing="$$missing docker.io"; \
 	command -v debootstrap >/dev/null 2>&1 || missing="$$missing debootstrap"; \
+	[ -x $(PG_BIN)/initdb ] && [ -x $(PG_BIN)/pg_ctl ] || missing="$$missing postgresql-15"; \
 	if [ -z "$$missing" ]; then :; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	  echo "make tools: installing$$missing (Debian packages) for tests/test_docker.py and tests/system/test_docker_engine.py"; \
+	  echo "make tools: installing$$missing (Debian packages) for the Docker and historian store tests"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
 	    apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	else \
 	  echo "make tools:$$missing missing and cannot be installed (needs root and apt-get);" \
-	       "the Docker tests will skip and say why"; \
+	       "the Docker tests will skip and say why, the historian store tests will fail"; \
 	fi
 	@$(MAKE) --no-print-directory node-tools
 

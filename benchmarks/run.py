@@ -11,7 +11,9 @@ Sections: ``mpc`` (MPC step time against cvxpy and do-mpc), ``cosim`` (co-simula
 hot spots), ``stack`` (OPC UA round trip, setpoint-to-action, PLC scan lateness, lock-step speed
 through real processes), ``robustness``, ``security``, ``cli`` (operator command wall time
 and the CLI's import cost), ``restarts`` (each tier SIGKILLed 20 times under ``tankctl up`` at
-speed 1: settings lost, level deviation, restart time, processes left). Progress goes to stderr;
+speed 1: settings lost, level deviation, restart time, processes left), ``historian-store`` (the
+historian's SQLite and PostgreSQL stores: ingest per core, a day read back in pages, bytes per
+value; ~2 min). Progress goes to stderr;
 the document is written at the end. ``--only`` writes a document with those sections alone:
 give it an ``--output`` to keep docs/benchmarks.md whole.
 """
@@ -33,6 +35,7 @@ from benchmarks import (
     accuracy,
     cli,
     cosim,
+    histstore,
     mpc,
     report,
     restarts,
@@ -44,7 +47,7 @@ from benchmarks import (
 from benchmarks.common import ROOT, machine, speed_reference, versions
 from tanklab_io.threads import limit_blas_threads
 
-SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli", "restarts")
+SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli", "restarts", "historian-store")
 
 
 @dataclass(frozen=True)
@@ -232,6 +235,15 @@ def main(argv: list[str] | None = None) -> int:
     section("security", run_security)
     section("cli", run_cli)
     section("restarts", run_restarts)
+
+    def run_histstore() -> None:
+        _log("historian storage (SQLite and a throw-away PostgreSQL 15):")
+        result = histstore.run(_log)
+        rep.extra.append(histstore.markdown(result))
+        rep.extra_goals += histstore.goals(result)
+        rep.errors += [f"historian-store: {e}" for e in result.errors]
+
+    section("historian-store", run_histstore)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started
