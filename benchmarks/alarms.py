@@ -69,13 +69,18 @@ from tanklab_testing.stack import Stack
 
 N_TANKS = 9
 """The most tanks a site config names (``T[1-9]``)."""
-BIAS_M = 0.24
-"""The common-mode transmitter bias [m]: a reading of 0.4 m becomes 0.62 m (the range's top), one
-of 0.36 m (after a round's pumps-off seconds) 0.60 m, both above the 0.58 m trip."""
+BIAS_M = 0.45
+"""The common-mode transmitter bias [m]: any reading from :data:`READY_M` up reads above the
+0.58 m trip (0.4 m reads 0.62 m, the range's top)."""
 LEVEL_M = 0.4
 """Every tank's equilibrium level [m] (LIC1's setpoint)."""
-READY_M = 0.35
-"""A round starts once every reading is back above this level [m] (0.35 + BIAS_M > 0.58)."""
+READY_M = 0.15
+"""A round starts once every reading is above this level [m] (0.15 + BIAS_M = 0.60 m > 0.58 m).
+
+The trip forces the pumps off from the activation to the reset (a few seconds, the tanks drain
+at about 4.5 mm/s at 0.4 m), and LIC1's PID, tracking the forced command, rebuilds its integral
+slowly (Ki 5.32e-6 per m s): the levels fall a few cm per round and recover over minutes, so the
+bias is large enough for any level a run reaches rather than waiting for the setpoint."""
 ROUNDS = 10
 """Rounds in a full run: acknowledging in one Call and in separate Calls alternate."""
 QUIET_SCANS = 3

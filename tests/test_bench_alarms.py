@@ -16,6 +16,7 @@ from benchmarks.alarms import (
     BIAS_M,
     N_CONDITIONS,
     ONE_CALL,
+    READY_M,
     SEPARATE,
     AlarmsResult,
     Round,
@@ -56,14 +57,13 @@ def test_the_bias_raises_the_whole_flood_in_one_scan_and_it_clears_with_the_rese
         return sorted((e.condition.name, e.reason) for e in p.alarms.events)
 
     assert scan(0.4) == [] and scan(0.4) == []
-    # the transmitters read 0.4 m + the bias (clipped at the range's top, 0.62 m)
-    flood = scan(min(0.62, 0.4 + BIAS_M))
+    # the lowest level a round starts from, plus the bias (the range's top is 0.62 m)
+    assert READY_M + BIAS_M < 0.62
+    flood = scan(READY_M + BIAS_M)
     assert len(flood) == N_CONDITIONS == 18
     assert {n for n, _ in flood} == set(flood_conditions())
     assert {r for n, r in flood if n.endswith("Level")} == {"active HighHigh"}
     assert {r for n, r in flood if n.endswith("Trip")} == {"active"}
-    # a reading of 0.36 m (after a round's pumps-off seconds) is still over the 0.58 m trip
-    assert 0.36 + BIAS_M >= 0.58
     # fault cleared: the levels return; the latched trips only after the reset
     back = scan(0.38)
     assert back == sorted((f"T{i}Level", "returned to normal") for i in range(1, 10))
@@ -126,6 +126,11 @@ def _by_name(res: AlarmsResult) -> dict[str, tuple[str, bool | None]]:
 def test_goals_at_the_reference_speed() -> None:
     g = _by_name(_result())  # speed reference 22.4 ms = twice the 11.2 ms reference: times x 0.5
     assert g["alarm flood at a 1 s scan: PLC overruns"] == ("0 in 4 rounds", True)
+    # activation scans 40, 40, 60, 40 ms: median 40; the longest, 60 ms, is 30 ms at the reference speed
+    (note,) = [x.note for x in goals(_result()) if x.name.endswith("PLC overruns")]
+    assert note.endswith(
+        "activation scan 40 ms median, 60 ms max as measured, 30 ms max at the reference speed"
+    )
     assert g["50 alarms raised in one scan"] == ("18 (the most a site config can raise in one scan)", None)
     assert g["every activation and acknowledged event received"] == (
         "72 / 72 activations, 72 / 72 acknowledged",
