@@ -11,7 +11,7 @@ import math
 import statistics
 from collections.abc import Sequence
 
-from benchmarks.alarms import BIAS_M, N_TANKS, ONE_CALL, POLL_S, SEPARATE, AlarmsResult, Round
+from benchmarks.alarms import BIAS_M, N_TANKS, ONE_CALL, POLL_S, QUIET_SCANS, SEPARATE, AlarmsResult, Round
 from benchmarks.common import Goal, at_reference_text, fmt, seconds_at_reference
 from benchmarks.report.base import table
 
@@ -174,7 +174,7 @@ def markdown(res: AlarmsResult) -> str:
         "",
         "Real plant and PLC processes on loopback (`tanklab_testing.stack.Stack`, the benchmark's "
         "own security home, every session Basic256Sha256 SignAndEncrypt as the engineer), PLC at "
-        f"speed 1. Each round: {3} quiet scans; the fault Write; the activation events counted at "
+        f"speed 1. Each round: {QUIET_SCANS} quiet scans; the fault Write; the activation events counted at "
         "an asyncua client subscribed to the Server object (100 ms publishing interval), each "
         "timed from the `Time` of its event (the raising scan's wall stamp) to its arrival; one "
         f"client acknowledging all {n} with the EventIds received, alternately in **one Call** "
