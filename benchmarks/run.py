@@ -13,7 +13,9 @@ through real processes), ``robustness``, ``security``, ``cli`` (operator command
 and the CLI's import cost), ``restarts`` (each tier SIGKILLed 20 times under ``tankctl up`` at
 speed 1: settings lost, level deviation, restart time, processes left), ``historian-store`` (the
 historian's SQLite and PostgreSQL stores: ingest per core, a day read back in pages, bytes per
-value; ~2 min). Progress goes to stderr;
+value; ~2 min), ``alarms`` (issue 15's alarm flood: the most conditions a site raises in one
+scan, acknowledged by one client, through real plant and PLC processes at a 1 s scan: overruns,
+scan durations, events/s). Progress goes to stderr;
 the document is written at the end. ``--only`` writes a document with those sections alone:
 give it an ``--output`` to keep docs/benchmarks.md whole.
 """
@@ -33,6 +35,7 @@ from pathlib import Path
 
 from benchmarks import (
     accuracy,
+    alarms,
     cli,
     cosim,
     histstore,
@@ -45,9 +48,10 @@ from benchmarks import (
     stack,
 )
 from benchmarks.common import ROOT, machine, speed_reference, versions
+from benchmarks.report import alarms_section
 from tanklab_io.threads import limit_blas_threads
 
-SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli", "restarts", "historian-store")
+SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli", "restarts", "historian-store", "alarms")
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,7 @@ class Plan:
     lockstep_runs: int
     realtime_x20_s: float
     cli_repeats: int
+    alarm_rounds: int
 
 
 FULL = Plan(
@@ -81,6 +86,7 @@ FULL = Plan(
     lockstep_runs=5,
     realtime_x20_s=30.0,
     cli_repeats=30,
+    alarm_rounds=alarms.ROUNDS,
 )
 QUICK = Plan(
     horizons=(10, 40, 160),
@@ -95,6 +101,7 @@ QUICK = Plan(
     lockstep_runs=1,
     realtime_x20_s=10.0,
     cli_repeats=8,
+    alarm_rounds=4,
 )
 
 
@@ -149,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
             "lateness windows": f"{plan.lateness_x1_s:g} s at speed 1, {plan.lateness_x20_s:g} s at speed 20",
             "lock-step runs": str(plan.lockstep_runs),
             "operator command runs": str(plan.cli_repeats),
+            "alarm flood rounds": str(plan.alarm_rounds),
         },
     )
     comparators = [mpc.CVXPY_OSQP, mpc.CVXPY_OSQP_TIGHT, mpc.CVXPY_DEFAULT, mpc.DOMPC]
@@ -244,6 +252,17 @@ def main(argv: list[str] | None = None) -> int:
         rep.errors += [f"historian-store: {e}" for e in result.errors]
 
     section("historian-store", run_histstore)
+
+    def run_alarms() -> None:
+        _log("alarm flood (conditions raised in one scan, one client acknowledging all, 1 s scan):")
+        result = asyncio.run(alarms.run(ROOT / "var" / "bench-alarms", _log, plan.alarm_rounds))
+        rep.extra.append(alarms_section.markdown(result))
+        rep.extra_goals += alarms_section.goals(result)
+        rep.errors += [f"alarms: {e}" for e in result.errors]
+        if result.left:
+            rep.errors.append(f"alarms: tankctl processes left on the stack's ports: {result.left}")
+
+    section("alarms", run_alarms)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started
