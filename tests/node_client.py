@@ -2,15 +2,19 @@
 
 Each script takes its arguments on the command line and the password in ``TANKLAB_PASSWORD``,
 and prints one ``RESULT {json}`` line; :func:`run_node_script` returns that JSON with ``rc``, the
-script's exit code, added. ``make tools`` installs the pinned node-opcua (tests/node/package-lock.json).
+script's exit code, added. A script that must say when it is ready (``READY``, before the test
+drives the process) runs under :func:`node_script`, which reads its lines as they come.
+``make tools`` installs the pinned node-opcua (tests/node/package-lock.json).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import shutil
+from collections.abc import AsyncIterator
 from typing import Any
 
 from tanklab_testing.procs import ROOT
@@ -46,3 +50,61 @@ async def run_node_script(script: str, *args: str, password: str, bound_s: float
     result: dict[str, Any] = json.loads(lines[0].removeprefix("RESULT "))
     result["rc"] = proc.returncode
     return result
+
+
+class NodeRun:
+    """A running node script (:func:`node_script`): its stdout read line by line."""
+
+    def __init__(self, proc: asyncio.subprocess.Process, script: str) -> None:
+        self.proc = proc
+        self.script = script
+
+    async def line(self, prefix: str, bound_s: float) -> str:
+        """The next stdout line starting with ``prefix`` (the lines before it are skipped);
+        ``bound_s`` bounds a hang. AssertionError with the script's stderr if it ends first."""
+        assert self.proc.stdout is not None
+
+        async def find() -> str:
+            assert self.proc.stdout is not None
+            while raw := await self.proc.stdout.readline():
+                text = raw.decode().rstrip("\n")
+                if text.startswith(prefix):
+                    return text
+            return ""
+
+        got = await asyncio.wait_for(find(), bound_s)
+        if not got:
+            assert self.proc.stderr is not None
+            err = (await self.proc.stderr.read()).decode()
+            raise AssertionError(f"node {self.script}: ended without a {prefix!r} line: {err[-2000:]}")
+        return got
+
+    async def result(self, bound_s: float) -> dict[str, Any]:
+        """The ``RESULT`` line's JSON plus ``rc``, once the script has exited (bounded)."""
+        line = await self.line("RESULT ", bound_s)
+        await asyncio.wait_for(self.proc.wait(), bound_s)
+        result: dict[str, Any] = json.loads(line.removeprefix("RESULT "))
+        result["rc"] = self.proc.returncode
+        return result
+
+
+@contextlib.asynccontextmanager
+async def node_script(script: str, *args: str, password: str) -> AsyncIterator[NodeRun]:
+    """``tests/node/<script>`` running with ``args`` while the block runs; killed on every path
+    if it has not exited by then."""
+    assert NODE is not None
+    proc = await asyncio.create_subprocess_exec(
+        NODE,
+        str(NODE_DIR / script),
+        *args,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+        cwd=NODE_DIR,
+        env=dict(os.environ, TANKLAB_PASSWORD=password),
+    )
+    try:
+        yield NodeRun(proc, script)
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
