@@ -176,16 +176,18 @@ class Plc:
     async def read(self, *nodes: ua.NodeId) -> list[Any]:
         return list(await self.client.read_values([self.client.get_node(n) for n in nodes]))
 
-    async def call(self, name: str, obj: ua.NodeId, method: ua.NodeId, *args: ua.Variant) -> str:
+    async def call(self, name: str | None, obj: ua.NodeId, method: ua.NodeId, *args: ua.Variant) -> str:
         """Call ``method`` on ``obj`` (a raw call: a Bad status is answered, not raised); the
         status name. The audit record it must leave is noted: ``<condition>.<method>``, by the
-        method's name (a type method) or the instance method node's last element."""
+        method's name (a type method) or the instance method node's last element; with no
+        condition (``name`` None: ``obj`` is none) ``<obj's NodeId string>.<method>``."""
         req = ua.CallMethodRequest(ObjectId=obj, MethodId=method, InputArguments=list(args))
         (result,) = await self.client.uaclient.call([req])
         status = str(result.StatusCode.name)
         assert status != "BadUnexpectedError"
         what = METHOD_NAMES.get(method) or str(method.Identifier).rsplit(".", 1)[-1]
-        self.made.append((self.user, ROLES[self.user], f"{paths.condition('plc', name)}.{what}", status))
+        where = obj.to_string() if name is None else paths.condition("plc", name)
+        self.made.append((self.user, ROLES[self.user], f"{where}.{what}", status))
         return status
 
     def latest(self, name: str) -> dict[str, Any]:
@@ -518,6 +520,11 @@ async def test_bad_arguments_and_a_timed_shelve_expiring_on_model_time(rig: Rig,
     assert max_ms == SITE.plc.alarms.max_shelving_time_s * 1000.0
     assert await op.call(T1, shelving, TIMED, ms(max_ms + 1000.0)) == "BadShelvingTimeOutOfRange"
     assert await op.call(T1, shelving, TIMED, ms(0.0)) == "BadShelvingTimeOutOfRange"
+    # A negative ShelvingTime is no Duration (like NaN and infinity): the projection's type check.
+    assert await op.call(T1, shelving, TIMED, ms(-1000.0)) == "BadTypeMismatch"
+    assert await op.call(T1, level, ACK, latest, text(""), text("")) == "BadTooManyArguments"
+    # An ObjectId that is no condition (the level's loop object).
+    assert await op.call(None, op.node("PLC.LIC1"), ACK, latest, text("")) == "BadNodeIdUnknown"
 
     # TimedShelve for SHELVE_S, the type's method with the ConditionId as ObjectId (UaExpert's way).
     model_time = op.node(paths.plc.model_time)
