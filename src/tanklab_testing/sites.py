@@ -31,11 +31,25 @@ def tier_url(base: int, tier: str, host: str = HOST) -> str:
     return f"opc.tcp://{host}:{base + TIERS.index(tier)}/tanklab/{tier}"
 
 
-def site_config(path: Path, *, retain: Path | None = None, at_operating_point: bool = False) -> Path:
+def site_config(
+    path: Path,
+    *,
+    retain: Path | None = None,
+    at_operating_point: bool = False,
+    pumps_hold_on_watchdog: bool = False,
+) -> Path:
     """The default config written to ``path``, optionally with a retentive-memory file and the
     tanks starting at the operating point with the equilibrium pump flows (so the loops start
-    settled instead of filling empty tanks)."""
+    settled instead of filling empty tanks).
+
+    ``pumps_hold_on_watchdog`` sets ``plant.watchdog.safe_state: hold``: the plant's pumps keep
+    their last command when no command arrives within the watchdog's timeout. A test that starts
+    the plant before the PLC at a high speed needs it: at speed 20 the default 10 s (model time)
+    timeout is 0.5 s of wall time, shorter than a PLC's start on a loaded machine, and pumps
+    switched off meanwhile drain the tanks away from the operating point the test starts from."""
     data = yaml.safe_load(ENERGIES.read_text(encoding="utf-8"))
+    if pumps_hold_on_watchdog:
+        data["plant"]["watchdog"]["safe_state"] = "hold"
     if retain is not None:
         data["plc"]["retain_file"] = str(retain)
     if at_operating_point:

@@ -118,9 +118,8 @@ def _config(path: Path) -> Path:
     initial pump command): T1's level holds while the tests bias its reading. The plant's pumps
     hold their command on the watchdog's timeout: the plant runs (at ``SPEED``) before the PLC
     serves, and its pumps going off would drain the tanks by then."""
-    site_config(path, at_operating_point=True)
+    site_config(path, at_operating_point=True, pumps_hold_on_watchdog=True)
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    data["plant"]["watchdog"]["safe_state"] = "hold"
     (loop,) = [lp for lp in data["plc"]["loops"] if lp["name"] == LIC1]
     loop["mode"] = "MANUAL"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")

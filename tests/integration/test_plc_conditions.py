@@ -92,7 +92,12 @@ async def refresh(client: Client, condition: ua.NodeId) -> list[dict[str, Any]]:
 
 @pytest.fixture
 async def stack(tmp_path: Path) -> AsyncIterator[Stack]:
-    config = site_config(tmp_path / "site.yaml", at_operating_point=True, retain=tmp_path / "retain.json")
+    config = site_config(
+        tmp_path / "site.yaml",
+        at_operating_point=True,
+        retain=tmp_path / "retain.json",
+        pumps_hold_on_watchdog=True,
+    )
     s = Stack(config, free_base_port(3), speed=20.0, state_file=tmp_path / "plant.json")
     try:
         await s.start("plant")
