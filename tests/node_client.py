@@ -29,27 +29,8 @@ async def run_node_script(script: str, *args: str, password: str, bound_s: float
 
     ``bound_s`` bounds a hang (not a speed check); the process is killed on every path.
     """
-    assert NODE is not None
-    proc = await asyncio.create_subprocess_exec(
-        NODE,
-        str(NODE_DIR / script),
-        *args,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-        cwd=NODE_DIR,
-        env=dict(os.environ, TANKLAB_PASSWORD=password),
-    )
-    try:
-        out, err = await asyncio.wait_for(proc.communicate(), bound_s)
-    finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
-    lines = [ln for ln in out.decode().splitlines() if ln.startswith("RESULT ")]
-    assert len(lines) == 1, f"node {script}: no result line (exit {proc.returncode}): {err.decode()[-2000:]}"
-    result: dict[str, Any] = json.loads(lines[0].removeprefix("RESULT "))
-    result["rc"] = proc.returncode
-    return result
+    async with node_script(script, *args, password=password) as run:
+        return await run.result(bound_s)
 
 
 class NodeRun:
@@ -58,6 +39,15 @@ class NodeRun:
     def __init__(self, proc: asyncio.subprocess.Process, script: str) -> None:
         self.proc = proc
         self.script = script
+        self._stderr = bytearray()
+        self._drain = asyncio.ensure_future(self._read_stderr())
+
+    async def _read_stderr(self) -> None:
+        """Keep the script's stderr (its last 4 kB) so a full pipe never blocks it."""
+        assert self.proc.stderr is not None
+        while chunk := await self.proc.stderr.read(65536):
+            self._stderr += chunk
+            del self._stderr[:-4096]
 
     async def line(self, prefix: str, bound_s: float) -> str:
         """The next stdout line starting with ``prefix`` (the lines before it are skipped);
@@ -74,9 +64,10 @@ class NodeRun:
 
         got = await asyncio.wait_for(find(), bound_s)
         if not got:
-            assert self.proc.stderr is not None
-            err = (await self.proc.stderr.read()).decode()
-            raise AssertionError(f"node {self.script}: ended without a {prefix!r} line: {err[-2000:]}")
+            rc = await asyncio.wait_for(self.proc.wait(), bound_s)
+            await asyncio.wait_for(self._drain, bound_s)
+            err = self._stderr.decode(errors="replace")[-2000:]
+            raise AssertionError(f"node {self.script}: exited {rc} without a {prefix!r} line: {err}")
         return got
 
     async def result(self, bound_s: float) -> dict[str, Any]:
@@ -102,9 +93,11 @@ async def node_script(script: str, *args: str, password: str) -> AsyncIterator[N
         cwd=NODE_DIR,
         env=dict(os.environ, TANKLAB_PASSWORD=password),
     )
+    run = NodeRun(proc, script)
     try:
-        yield NodeRun(proc, script)
+        yield run
     finally:
         if proc.returncode is None:
             proc.kill()
             await proc.wait()
+        run._drain.cancel()
