@@ -13,8 +13,9 @@
   i.e. stepped, with ``UseSimpleBounds``).
 * ``ReadEventDetails`` on the Server object (every event) or on a recorded object (its events
   and those of its children by SourceName): the where-clause may be an ``OfType`` (with the
-  type's subtypes), ``GreaterThanOrEqual``/``GreaterThan`` on ``Severity``, ``And`` of those and
-  ``Or`` of ``OfType``s; the select clauses' fields are returned in their order.
+  type's subtypes; BaseEventType: any), ``EventType InList`` literals (what asyncua's clients
+  send), ``GreaterThanOrEqual``/``GreaterThan`` on ``Severity``, ``And`` of those and ``Or`` of
+  type filters; the select clauses' fields are returned in their order.
 
 Codes (operation level): Bad_NodeIdUnknown (no tag for the NodeId), Bad_AggregateNotSupported,
 Bad_AggregateListMismatch, Bad_InvalidTimestampArgument (Part 11's time-domain rules),
@@ -88,6 +89,7 @@ AGGREGATE_NODE_IDS: dict[int, str] = {
 }
 """The aggregate functions' NodeIds (namespace 0) -> the kernel's aggregate names."""
 
+_BASE_EVENT_TYPE = "i=2041"
 _READ_CHUNK = 50_000
 """Store page while gathering a processed read's samples."""
 
@@ -487,7 +489,19 @@ class HistoryReadService:
         if op == ua.FilterOperator.OfType:
             if len(ops) != 1 or not isinstance(ops[0], ua.LiteralOperand):
                 raise _ReadError(BAD_EVENT_FILTER_INVALID, "OfType takes one NodeId literal")
-            return _EventFilter(types=frozenset(self._subtypes(ops[0].Value.Value)))
+            return _EventFilter(types=_any_type(self._subtypes(ops[0].Value.Value)))
+        if op == ua.FilterOperator.InList:
+            # asyncua's clients send EventType InList [the types and their subtypes]
+            if (
+                len(ops) < 2
+                or not isinstance(ops[0], ua.SimpleAttributeOperand)
+                or [q.Name for q in ops[0].BrowsePath] != ["EventType"]
+                or not all(isinstance(o, ua.LiteralOperand) for o in ops[1:])
+            ):
+                raise _ReadError(BAD_FILTER_OPERATOR_UNSUPPORTED, "only EventType InList literals")
+            return _EventFilter(
+                types=_any_type(set().union(*(self._subtypes(o.Value.Value) for o in ops[1:])))
+            )
         if op in (ua.FilterOperator.GreaterThanOrEqual, ua.FilterOperator.GreaterThan):
             if (
                 len(ops) != 2
@@ -520,6 +534,11 @@ class HistoryReadService:
         if self.event_subtypes is None:
             return {s}
         return self.event_subtypes(s)
+
+
+def _any_type(types: Collection[str]) -> frozenset[str] | None:
+    """BaseEventType among the types matches every event (whatever its type's namespace)."""
+    return None if _BASE_EVENT_TYPE in types else frozenset(types)
 
 
 def _from_source(e: EventRecord, source: str | None) -> bool:
@@ -597,4 +616,12 @@ def install_history_read(
 
     manager.read_history = read_history
     manager.update_history = service.update
+    if executor is None:
+        stop = manager.stop
+
+        async def stop_and_release() -> None:
+            await stop()
+            pool.shutdown(wait=False, cancel_futures=True)
+
+        manager.stop = stop_and_release
     return service
