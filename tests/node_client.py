@@ -22,6 +22,8 @@ from tanklab_testing.procs import ROOT
 NODE = shutil.which("node")
 """The node executable (None: not installed; the tests that need it skip)."""
 NODE_DIR = ROOT / "tests" / "node"
+LINE_LIMIT = 64 * 1024 * 1024
+"""The longest stdout line read [bytes]: a result line may carry a whole history read."""
 
 
 async def run_node_script(script: str, *args: str, password: str, bound_s: float = 120.0) -> dict[str, Any]:
@@ -92,6 +94,7 @@ async def node_script(script: str, *args: str, password: str) -> AsyncIterator[N
         stderr=asyncio.subprocess.PIPE,
         cwd=NODE_DIR,
         env=dict(os.environ, TANKLAB_PASSWORD=password),
+        limit=LINE_LIMIT,
     )
     run = NodeRun(proc, script)
     try:
