@@ -2,86 +2,26 @@
 from a secured tanklab server with its own calls, as an Observer: ``readHistoryValue`` following
 the continuation points, and ``readAggregateValue`` (Average). The server is a tier server secured
 like every tier (site PKI, user names, roles) with :func:`install_history_read` over a store that
-holds a known series; the answers are checked against that series by hand.
+holds a known series (``history_url`` in conftest.py); the answers are checked against that
+series by hand.
 """
 
 from __future__ import annotations
 
 import shutil
-from collections.abc import AsyncIterator
-from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
 import pytest
-from asyncua import ua
 
-from helpers import ROOT, free_port, server_security, session_home
-from historian.history_read import install_history_read, site_tag_mapper
-from historian.store import HistoryStore
-from historian.store.sqlite import SQLiteStore
+from helpers import session_home
+from history_series import T0, TAG, N, S, iso, level
 from node_client import NODE, NODE_DIR, run_node_script
-from tanklab.config import load_site
-from tanklab.history.model import Sample
-from tanklab.tags import NAMESPACE_URI, Tag, plc_tags
 from tanklab_io.pki import trust
-from tanklab_io.ua_security import start_tier_server
 
 pytestmark = pytest.mark.skipif(
     NODE is None, reason="node is not installed (node-opcua needs node 20+ and `make tools`)"
 )
-
-SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
-S = 1_000_000  # [us]
-T0 = 1_764_633_600_000_000  # 2025-12-02 00:00 UTC [us]
-EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
-TAG = "PLC.LIC1.PV"
-N = 2_500  # 2.5 pages of node-opcua's 1,000 values
-
-
-def iso(t_us: int) -> str:
-    """As JavaScript's Date.toISOString writes it (milliseconds, Z)."""
-    return (EPOCH + timedelta(microseconds=t_us)).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
-def level(k: int) -> float:
-    """The recorded series: a ramp, 0.1 m + 1 mm per second [m]."""
-    return 0.1 + 0.001 * k
-
-
-async def _nothing(*_: Any) -> ua.StatusCode:
-    return ua.StatusCode(ua.StatusCodes.Good)
-
-
-def _accept(tag: Tag, value: Any) -> None:
-    return None
-
-
-@pytest.fixture
-async def url(tmp_path: Path) -> AsyncIterator[str]:
-    store: HistoryStore = SQLiteStore(tmp_path / "history.db")
-    # every 100th sample Bad (a gap marker), the rest Good
-    store.append_samples(
-        {TAG: [Sample(T0 + k * S, level(k), 0x8031_0000 if k % 100 == 50 else 0) for k in range(N)]}
-    )
-    tags = plc_tags(SITE)
-    endpoint = f"opc.tcp://127.0.0.1:{free_port()}/tanklab/historian"
-    tier = await start_tier_server(
-        "plc",
-        url=endpoint,
-        name="history test",
-        security=server_security(tmp_path / "audit"),
-        tags=tags,
-        writes={t.path: _accept for t in tags if t.kind == "variable" and t.writable},
-        methods={t.path: _nothing for t in tags if t.kind == "method"},
-    )
-    try:
-        ns = await tier.server.get_namespace_index(NAMESPACE_URI)
-        install_history_read(tier.server, store, site_tag_mapper(store, ns))
-        yield endpoint
-    finally:
-        await tier.server.stop()
-        store.close()
 
 
 async def _history(url: str, pki_dir: Path, start_us: int, end_us: int, interval_ms: int) -> dict[str, Any]:
@@ -89,7 +29,7 @@ async def _history(url: str, pki_dir: Path, start_us: int, end_us: int, interval
     return await run_node_script("history.mjs", *args, password="observer-test-password")
 
 
-async def test_node_opcua_reads_raw_and_processed_history(url: str, tmp_path: Path) -> None:
+async def test_node_opcua_reads_raw_and_processed_history(history_url: str, tmp_path: Path) -> None:
     stamp = NODE_DIR / "node_modules" / ".package-lock.json"
     if not stamp.is_file() or stamp.stat().st_mtime < (NODE_DIR / "package-lock.json").stat().st_mtime:
         pytest.fail(f"{NODE_DIR}/node_modules is missing or older than package-lock.json: run `make tools`")
@@ -99,11 +39,11 @@ async def test_node_opcua_reads_raw_and_processed_history(url: str, tmp_path: Pa
         (client_pki / "trusted" / sub).mkdir(parents=True, exist_ok=True)
         shutil.copy(file, client_pki / "trusted" / sub / file.name)
     start, end = T0, T0 + N * S
-    first = await _history(url, client_pki, start, end, 60_000)  # makes its certificate
+    first = await _history(history_url, client_pki, start, end, 60_000)  # makes its certificate
     assert first["ok"] is False and "BadCertificateUntrusted" in first["error"], first
     trust(pki, Path(first["certificate"]))
 
-    result = await _history(url, client_pki, start, end, 60_000)
+    result = await _history(history_url, client_pki, start, end, 60_000)
     assert result["ok"] is True and result["rc"] == 0, result
     raw = result["raw"]
     # every value, in order, with its source time and status, over three pages
