@@ -17,15 +17,9 @@ from hypothesis import strategies as st
 
 from helpers import secure
 from history_series import EVENTS, T0, TAG, N, S, is_bad, level
+from tankctl.history_files import plot_history, write_parquet
 from tankctl.ops.errors import UsageError
-from tankctl.ops.history_output import (
-    plot_history,
-    render_csv,
-    render_events,
-    render_json,
-    render_text,
-    write_parquet,
-)
+from tankctl.ops.history_output import render_csv, render_events, render_json, render_text
 from tankctl.ops.history_read import (
     HistoryReadError,
     HistoryRow,
