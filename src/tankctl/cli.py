@@ -53,6 +53,7 @@ class TankctlGroup(LazyGroup):
         "plant",
         "plc",
         "supervisor",
+        "historian",
         "up",
         "config",
         "tune",
@@ -551,7 +552,9 @@ def historian(
 def up(
     config: ConfigOpt = None,
     speed: SpeedOpt = None,
-    base_port: Annotated[int, typer.Option(help="Ports N, N+1, N+2 for plant, PLC, supervisor.")] = 4840,
+    base_port: Annotated[
+        int, typer.Option(help="Ports N, N+1, N+2, N+3 for plant, PLC, supervisor, historian.")
+    ] = 4840,
     clock: Annotated[
         str, typer.Option(help="realtime (wall clock x speed) or lockstep (as fast as possible).")
     ] = "realtime",
@@ -571,7 +574,7 @@ def up(
         ),
     ] = False,
 ) -> None:
-    """Start plant, PLC and supervisor as child processes and show a live board.
+    """Start plant, PLC, supervisor and historian as child processes and show a live board.
 
     Before starting anything it checks that every port is free, that no stack runs from the
     same log directory and that the PKI is complete; on first use it creates the PKI and an
@@ -590,8 +593,8 @@ def up(
         raise fail(f"{path}: plc: `tankctl up` needs a PLC program")
     if clock not in ("realtime", "lockstep"):
         raise fail(f"--clock must be realtime or lockstep, got {clock!r}")
-    if not 1 <= base_port <= 65533:
-        raise fail(f"--base-port must be 1..65533, got {base_port}")
+    if not 1 <= base_port <= 65532:
+        raise fail(f"--base-port must be 1..65532, got {base_port}")
     spd = resolve_speed(speed)
     stack = LocalStack(
         site,

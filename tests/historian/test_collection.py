@@ -174,10 +174,11 @@ async def test_the_store_holds_what_the_tiers_published_with_gaps_marked(stack: 
         if tag in (PLC_PV, PLC_SCAN):
             assert len(kinds) == 2, (tag, kinds)  # the restart, the kill
             last_plc = max(x.t_us for t in (PLC_PV, PLC_SCAN) for x in oracle.seen[t])
-            # after every PLC value the test saw; within a second of it (other PLC nodes are
-            # stamped by later publishes, and the last publish before the kill may have reached
-            # the historian only)
-            assert last_plc < kinds[-1].t_us <= last_plc + 1_000_000
+            # after every PLC value the historian received, and near the last one the test saw
+            # (the last publish before the kill may reach one client and not the other: what
+            # the historian missed is after the marker, inside the gap, as checked above)
+            assert kinds[-1].t_us > max(x.t_us for x in good)
+            assert abs(kinds[-1].t_us - last_plc) <= 1_000_000
             assert got[-1] == kinds[-1]  # nothing after the PLC's death
         else:
             assert len(kinds) == 1, (tag, kinds)  # the restart only: the plant kept publishing
