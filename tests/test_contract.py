@@ -125,7 +125,9 @@ def test_the_builders_spell_the_contract_paths() -> None:
         "plant": "Plant.Sim.Time",
         "plc": "PLC.Status.Scan",
         "supervisor": "Supervisor.Mode",
+        "historian": "Historian.Status.StoreKind",
     }
+    assert paths.historian.tier("plc").gaps == "Historian.Status.PLC.Gaps"
 
 
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)

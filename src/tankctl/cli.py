@@ -53,6 +53,7 @@ class TankctlGroup(LazyGroup):
         "plant",
         "plc",
         "supervisor",
+        "historian",
         "up",
         "config",
         "tune",
@@ -482,10 +483,78 @@ def supervisor(
 
 
 @app.command()
+def historian(
+    config: ConfigOpt = None,
+    plant_url: Annotated[str | None, typer.Option(help="Plant endpoint (env TANKLAB_PLANT_URL).")] = None,
+    plc_url: Annotated[str | None, typer.Option(help="PLC endpoint (env TANKLAB_PLC_URL).")] = None,
+    supervisor_url: Annotated[
+        str | None, typer.Option(help="Supervisor endpoint (env TANKLAB_SUPERVISOR_URL).")
+    ] = None,
+    host: HostOpt = None,
+    port: Annotated[int | None, typer.Option(help="TCP port (env TANKLAB_PORT; default 4843).")] = None,
+    speed: SpeedOpt = None,
+    store: Annotated[
+        str | None,
+        typer.Option(
+            help="Store: a postgresql:// URL or a SQLite file (env TANKLAB_HISTORIAN_URL; default the "
+            "config's historian.store, else var/<site>/history.db)."
+        ),
+    ] = None,
+    home: HomeOpt = None,
+    audit_dir: AuditOpt = None,
+) -> None:
+    """Serve the historian at opc.tcp://HOST:PORT/tanklab/historian, recording every tier.
+
+    Subscribes to every recorded node and to the events of the plant, the PLC and the supervisor,
+    marks a gap (a BadNoCommunication sample per tag) when a tier stops publishing, and writes
+    through a bounded buffer to its store (SQLite by default, PostgreSQL by URL)."""
+    from historian.runtime import default_store, run_historian
+    from historian.store import store_location
+    from tanklab.paths import SourceTier
+
+    site = load(resolve_config(config))
+    bind = host or _env("TANKLAB_HOST") or "127.0.0.1"
+    p = _port(port, site.endpoints.historian.port)
+    spd = resolve_speed(speed)
+    urls: dict[SourceTier, str] = {
+        "plant": _url(plant_url, "TANKLAB_PLANT_URL", site.endpoints.plant.url("plant")),
+    }
+    if site.plc is not None:
+        urls["plc"] = _url(plc_url, "TANKLAB_PLC_URL", site.endpoints.plc.url("plc"))
+    if site.supervisor is not None:
+        urls["supervisor"] = _url(
+            supervisor_url, "TANKLAB_SUPERVISOR_URL", site.endpoints.supervisor.url("supervisor")
+        )
+    location = store or store_location(Path(site.historian.store or default_store(site)))
+
+    async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
+        await run_historian(
+            site,
+            host=bind,
+            port=p,
+            urls=urls,
+            store=location,
+            security=server_security(home, audit_dir),
+            stop=stop,
+            speed=spd,
+            ready=ready,
+        )
+
+    shown = location.split("@")[-1] if "://" in location else location
+    serve(
+        "historian",
+        f"historian: {site.name} at opc.tcp://{bind}:{p}/tanklab/historian (store {shown}, speed {spd:g})",
+        runner,
+    )
+
+
+@app.command()
 def up(
     config: ConfigOpt = None,
     speed: SpeedOpt = None,
-    base_port: Annotated[int, typer.Option(help="Ports N, N+1, N+2 for plant, PLC, supervisor.")] = 4840,
+    base_port: Annotated[
+        int, typer.Option(help="Ports N, N+1, N+2, N+3 for plant, PLC, supervisor, historian.")
+    ] = 4840,
     clock: Annotated[
         str, typer.Option(help="realtime (wall clock x speed) or lockstep (as fast as possible).")
     ] = "realtime",
@@ -505,7 +574,7 @@ def up(
         ),
     ] = False,
 ) -> None:
-    """Start plant, PLC and supervisor as child processes and show a live board.
+    """Start plant, PLC, supervisor and historian as child processes and show a live board.
 
     Before starting anything it checks that every port is free, that no stack runs from the
     same log directory and that the PKI is complete; on first use it creates the PKI and an
@@ -524,8 +593,8 @@ def up(
         raise fail(f"{path}: plc: `tankctl up` needs a PLC program")
     if clock not in ("realtime", "lockstep"):
         raise fail(f"--clock must be realtime or lockstep, got {clock!r}")
-    if not 1 <= base_port <= 65533:
-        raise fail(f"--base-port must be 1..65533, got {base_port}")
+    if not 1 <= base_port <= 65532:
+        raise fail(f"--base-port must be 1..65532, got {base_port}")
     spd = resolve_speed(speed)
     stack = LocalStack(
         site,

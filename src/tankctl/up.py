@@ -7,7 +7,7 @@ Lifecycle, in this order (decision record 0018):
    tanklab process (a stale one is replaced), the site's PKI and the CLI's login are complete
    (created on first run as :func:`tanklab_io.home.provision` does). A failure is one line and
    :class:`PreflightError`; nothing was started and no pid file was touched.
-2. **Start** the plant, the PLC and the supervisor bottom-up as child processes
+2. **Start** the plant, the PLC, the supervisor and the historian bottom-up as child processes
    (``python -m tankctl <tier>``), each in its own session (process group), logging to its own
    file, with a pid file ``<run dir>/<tier>.pid``; each must answer an OPC UA read before the
    next starts. SIGINT and SIGTERM are handled from before the first child starts: start-up is
@@ -17,8 +17,9 @@ Lifecycle, in this order (decision record 0018):
    A tier that dies stops the stack (exit 1) unless the site's ``stack.restart`` restarts it.
 4. **Stop**, the one path for a signal, a tier's death, a start-up failure and an exception:
    SIGTERM to the PLC first (its retentive memory then still holds the running stack's modes and
-   gain sources, before it could see its supervisor or plant go), then to the supervisor and the
-   plant (which checkpoints its state); whatever still runs after ``STOP_GRACE_S`` gets SIGKILL
+   gain sources, before it could see its supervisor or plant go), then to the supervisor, the
+   historian (which stores what it buffered and marks nothing: its next start marks the gap) and
+   the plant (which checkpoints its state); whatever still runs after ``STOP_GRACE_S`` gets SIGKILL
    to its process group. Pid files are removed; ``up`` says what was saved and where.
 
 With ``--clock lockstep`` the plant follows the PLC's scans (``Plant.Sim.Advance``) instead of the
@@ -43,12 +44,13 @@ from typing import Literal
 from rich.console import Console
 from rich.live import Live
 
+from historian.store import URL_ENV
 from tankctl.up_board import Board
 from tankctl.up_process import Tier, last_error_line, running_pid
 from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.errors import TanklabError
-from tanklab.tags import Tag, plant_tags, plc_tags, supervisor_tags, tags_by_path
+from tanklab.tags import Tag, historian_tags, plant_tags, plc_tags, supervisor_tags, tags_by_path
 from tanklab_io.home import SecurityHome, default_home, provision
 from tanklab_io.pki import IDENTITIES
 from tanklab_io.ua_client import Link
@@ -67,7 +69,8 @@ __all__ = [
     "running_pid",
 ]
 
-TIERS = ("plant", "plc", "supervisor")
+TIERS = ("plant", "plc", "supervisor", "historian")
+"""Every process ``up`` starts, bottom-up and in port order (base port + index)."""
 READY_TIMEOUT_S = 60.0
 """How long a started tier gets to answer its first OPC UA read."""
 STOP_BOUND_S = 10.0
@@ -169,6 +172,23 @@ class LocalStack:
                 self.base_port + 2,
                 self.log_dir / "supervisor.log",
             )
+        below = ["--plant-url", urls["plant"], "--plc-url", urls["plc"]]
+        if self.site.supervisor is not None:
+            below += ["--supervisor-url", urls["supervisor"]]
+        # The store: TANKLAB_HISTORIAN_URL, else the config's historian.store, else a SQLite file
+        # in the run directory (var/<site>/history.db), beside the plant's state.
+        store = (
+            []
+            if os.environ.get(URL_ENV) or self.site.historian.store
+            else ["--store", str(self.history_file)]
+        )
+        self.tiers["historian"] = Tier(
+            "historian",
+            ["historian", *common, "--port", str(self.base_port + 3), *below, *store],
+            urls["historian"],
+            self.base_port + 3,
+            self.log_dir / "historian.log",
+        )
 
     # ---- files ----------------------------------------------------------------------------
 
@@ -187,6 +207,11 @@ class LocalStack:
     def supervisor_retain_file(self) -> Path:
         """The supervisor's retentive mode of this run directory."""
         return self.log_dir / "supervisor-retain.json"
+
+    @property
+    def history_file(self) -> Path:
+        """The historian's SQLite store of this run directory (unless a store is configured)."""
+        return self.log_dir / "history.db"
 
     @property
     def pid_path(self) -> Path:
@@ -369,7 +394,13 @@ class LocalStack:
 
     async def _probe(self, tier: Tier) -> None:
         path = paths.PROBE_PATHS[tier.name]
-        tags = {"plant": plant_tags, "plc": plc_tags, "supervisor": supervisor_tags}[tier.name](self.site)
+        builders = {
+            "plant": plant_tags,
+            "plc": plc_tags,
+            "supervisor": supervisor_tags,
+            "historian": historian_tags,
+        }
+        tags = builders[tier.name](self.site)
         link = self.link(tier.name, {path: tags_by_path(tags)[path]}, tier.name)
         deadline = time.monotonic() + READY_TIMEOUT_S
         try:

@@ -12,8 +12,9 @@ parameter that changes the model, the program or the controller gives another.
 
 Left out, because they say where and how a copy of the site runs rather than what it is, and
 differ between two correct views of one stack (``tankctl up`` on a base port, Docker's
-``0.0.0.0`` binds, the host CLI's ``127.0.0.1``): ``endpoints``, ``stack``,
-``plant.state_file`` and ``plc.retain_file``. Decision 0020 records the choice.
+``0.0.0.0`` binds, the host CLI's ``127.0.0.1``): ``endpoints``, ``stack``, ``historian``
+(where the history goes and how long it stays), ``plant.state_file`` and ``plc.retain_file``.
+Decision 0020 records the choice.
 
 Pure: no I/O, no clock.
 """
@@ -30,6 +31,7 @@ from tanklab.config import ConfigError, SiteConfig, site_from_mapping
 DEPLOYMENT_FIELDS: dict[str, Any] = {
     "endpoints": True,
     "stack": True,
+    "historian": True,
     "plant": {"state_file"},
     "plc": {"retain_file"},
 }

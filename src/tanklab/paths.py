@@ -19,9 +19,19 @@ from __future__ import annotations
 from functools import cache
 from typing import Literal
 
-Tier = Literal["plant", "plc", "supervisor"]
+Tier = Literal["plant", "plc", "supervisor", "historian"]
 
-TIER_ROOTS: dict[Tier, str] = {"plant": "Plant", "plc": "PLC", "supervisor": "Supervisor"}
+SourceTier = Literal["plant", "plc", "supervisor"]
+"""The tiers the historian records (every tier but itself)."""
+
+SOURCE_TIERS: tuple[SourceTier, ...] = ("plant", "plc", "supervisor")
+
+TIER_ROOTS: dict[Tier, str] = {
+    "plant": "Plant",
+    "plc": "PLC",
+    "supervisor": "Supervisor",
+    "historian": "Historian",
+}
 """The root object of each tier's nodes."""
 
 LINK_STATUS_ITEMS = ("Attempts", "Connects", "LastError", "RetryDelay")
@@ -40,6 +50,7 @@ PROBE_PATHS: dict[str, str] = {
     "plant": "Plant.Sim.Time",
     "plc": "PLC.Status.Scan",
     "supervisor": "Supervisor.Mode",
+    "historian": "Historian.Status.StoreKind",
 }
 """The node a readiness or health probe reads on each tier: one that every site has and that
 the tier serves from its first second (``tankctl.health``, ``tankctl up``)."""
@@ -352,6 +363,46 @@ class SupervisorPaths:
         return RlsPaths(loop)
 
 
+# ---- historian --------------------------------------------------------------------------
+
+
+class HistorianTierPaths:
+    """The historian's view of one recorded tier (``Historian.Status.PLC.*``)."""
+
+    __slots__ = ("connected", "gaps", "last_sample", "link", "root", "samples")
+
+    def __init__(self, tier: SourceTier) -> None:
+        root = f"Historian.Status.{TIER_ROOTS[tier]}"
+        self.root = root
+        self.connected = f"{root}.Connected"
+        self.last_sample = f"{root}.LastSample"
+        self.samples = f"{root}.Samples"
+        self.gaps = f"{root}.Gaps"
+        self.link = f"{root}.Link"
+        """Prefix of the link's status nodes (:func:`link_status_paths`)."""
+
+
+class HistorianPaths:
+    """Every historian node path (``Historian.*``); one instance, :data:`historian`."""
+
+    status = "Historian.Status"
+    buffered = "Historian.Status.Buffered"
+    dropped = "Historian.Status.Dropped"
+    stored = "Historian.Status.Stored"
+    events = "Historian.Status.Events"
+    store_kind = "Historian.Status.StoreKind"
+    store_available = "Historian.Status.StoreAvailable"
+    store_error = "Historian.Status.StoreError"
+    retention_deleted = "Historian.Status.RetentionDeleted"
+
+    @staticmethod
+    @cache
+    def tier(name: SourceTier) -> HistorianTierPaths:
+        """The status of the historian's collection from tier ``name`` (``plc``)."""
+        return HistorianTierPaths(name)
+
+
 plant = PlantPaths()
 plc = PlcPaths()
 supervisor = SupervisorPaths()
+historian = HistorianPaths()

@@ -21,10 +21,12 @@ from tanklab.identity import SiteIdentity, canonical_json
 from tanklab.paths import (
     IDENTITY_ITEMS,
     LINK_STATUS_ITEMS,
+    SOURCE_TIERS,
     TIER_ROOTS,
     AlarmKind,
     BalanceItem,
     Tier,
+    historian,
     identity_paths,
     link_status_paths,
     plant,
@@ -60,6 +62,7 @@ __all__ = [
     "Tag",
     "Tier",
     "all_tags",
+    "historian_tags",
     "identity_paths",
     "link_status_paths",
     "plant",
@@ -82,6 +85,7 @@ APPLICATION_URIS = {
     "plant": "urn:tanklab:plant",
     "plc": "urn:tanklab:plc",
     "supervisor": "urn:tanklab:supervisor",
+    "historian": "urn:tanklab:historian",
     "cli": "urn:tanklab:cli",
 }
 """ApplicationUri of each tier (and of the CLI as a client)."""
@@ -595,6 +599,59 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
     return b.tags
 
 
+def historian_tags(site: SiteConfig) -> list[Tag]:
+    """Status nodes of the historian for ``site`` (its own; the recorded tiers' NodeIds are served
+    for HistoryRead by the historian's history service, not as live nodes)."""
+    b = TagList("historian")
+    _identity(b, site)
+    for tier in SOURCE_TIERS:
+        if (tier == "plc" and site.plc is None) or (tier == "supervisor" and site.supervisor is None):
+            continue
+        tp = historian.tier(tier)
+        b.var(tp.connected, DataType.BOOLEAN, f"True while the {tier} is subscribed and its clock advances.")
+        b.var(
+            tp.last_sample,
+            DataType.DOUBLE,
+            f"Source time of the newest sample received from the {tier} (UTC seconds since 1970; 0 "
+            "before the first) [s].",
+            unit="s",
+            eu_range=(0.0, 1e11),
+        )
+        b.var(tp.samples, DataType.UINT32, f"Samples received from the {tier} since start.")
+        b.var(
+            tp.gaps,
+            DataType.UINT32,
+            f"Gaps marked in the {tier}'s tags since start (its clock stopped advancing or its link "
+            "dropped: one Bad sample per tag at the gap's start).",
+        )
+        _link_status(b, tp.link, tier)
+    b.var(
+        historian.buffered,
+        DataType.UINT32,
+        "Samples and events received and not yet stored (waiting in the bounded buffer).",
+    )
+    b.var(
+        historian.dropped,
+        DataType.UINT32,
+        "Samples and events dropped since start because the buffer was full (the store was away).",
+    )
+    b.var(historian.stored, DataType.UINT32, "Samples stored since start (new rows; duplicates not counted).")
+    b.var(historian.events, DataType.UINT32, "Events stored since start (new rows).")
+    b.var(historian.store_kind, DataType.STRING, "The store's back end: sqlite or postgresql.")
+    b.var(historian.store_available, DataType.BOOLEAN, "True while the last write to the store succeeded.")
+    b.var(
+        historian.store_error,
+        DataType.STRING,
+        "Why the last write to the store failed: exception class and message (empty until then).",
+    )
+    b.var(
+        historian.retention_deleted,
+        DataType.UINT32,
+        "Samples and events deleted by retention since start.",
+    )
+    return b.tags
+
+
 def all_tags(site: SiteConfig) -> list[Tag]:
     """Every node of every tier the site has."""
     tags = plant_tags(site)
@@ -602,7 +659,7 @@ def all_tags(site: SiteConfig) -> list[Tag]:
         tags += plc_tags(site)
     if site.supervisor is not None:
         tags += supervisor_tags(site)
-    return tags
+    return tags + historian_tags(site)
 
 
 def tags_by_path(tags: list[Tag]) -> dict[str, Tag]:
@@ -641,6 +698,7 @@ def render_markdown(site: SiteConfig) -> str:
         ("Plant", "plant", plant_tags),
         ("PLC", "plc", plc_tags),
         ("Supervisor", "supervisor", supervisor_tags),
+        ("Historian", "historian", historian_tags),
     ):
         if (tier == "plc" and site.plc is None) or (tier == "supervisor" and site.supervisor is None):
             continue

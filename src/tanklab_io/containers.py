@@ -43,7 +43,7 @@ CONTAINER_UID = 10001
 CONTAINER_GID = 10001
 """gid of the image's ``tanklab`` group (Dockerfile ``groupadd --gid``)."""
 
-TIERS = ("plant", "plc", "supervisor")
+TIERS = ("plant", "plc", "supervisor", "historian")
 """The tiers that run as containers (docker-compose.yml's services)."""
 
 
@@ -102,7 +102,7 @@ def lay_out(
     Parameters
     ----------
     home : the host's security home; its PKI must be complete and its users file present.
-    tiers : the tiers to lay out (default plant, plc, supervisor).
+    tiers : the tiers to lay out (default plant, plc, supervisor, historian).
     uid, gid : owner of every copied file and directory (the container's user).
     euid : the caller's effective uid (default ``os.geteuid()``); not root means ``uid`` must
         be the caller's own.

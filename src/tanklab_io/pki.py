@@ -91,10 +91,10 @@ __all__ = [
     "write_file",
 ]
 
-IDENTITIES = ("plant", "plc", "supervisor", "cli")
+IDENTITIES = ("plant", "plc", "supervisor", "historian", "cli")
 """The application identities :func:`init_pki` issues a certificate for (keys of APPLICATION_URIS)."""
 
-SERVER_IDENTITIES = ("plant", "plc", "supervisor")
+SERVER_IDENTITIES = ("plant", "plc", "supervisor", "historian")
 """The identities that serve OPC UA (the certificates a third-party client is presented)."""
 
 _log = logging.getLogger(__name__)

@@ -144,10 +144,16 @@ LIMITS = Limits()
 # Tier certificate -> the role it acts in, on the server of the tier below.
 # (A tier's own certificate observes its own server: that is how its health probe reads.)
 _IDENTITY_ROLES: dict[str, dict[str, Role]] = {
-    "plant": {"plc": Role.PLC, "plant": Role.OBSERVER},
-    "plc": {"supervisor": Role.SUPERVISOR, "plc": Role.OBSERVER},
-    "supervisor": {"supervisor": Role.OBSERVER},
+    "plant": {"plc": Role.PLC, "plant": Role.OBSERVER, "historian": Role.OBSERVER},
+    "plc": {"supervisor": Role.SUPERVISOR, "plc": Role.OBSERVER, "historian": Role.OBSERVER},
+    "supervisor": {"supervisor": Role.OBSERVER, "historian": Role.OBSERVER},
+    "historian": {"historian": Role.OBSERVER},
 }
+
+_OPTIONAL_IDENTITIES = frozenset({"historian"})
+"""Identities a tier maps when their certificate exists but does not require: a home made before
+the historian (issue 16) still starts its plant, PLC and supervisor (`tankctl up` and `tankctl pki
+init` issue the missing certificate; the historian reads as Observer)."""
 
 _DISCOVERY = frozenset(
     ua.NodeId(i)
@@ -291,7 +297,10 @@ def tier_identities(pki: Pki, tier: str) -> dict[bytes, tuple[str, Role]]:
     """The tier certificates that may act on ``tier``'s server, with their roles."""
     out: dict[bytes, tuple[str, Role]] = {}
     for name, role in _IDENTITY_ROLES[tier].items():
-        out[pki.cert_path(name).read_bytes()] = (name, role)
+        path = pki.cert_path(name)
+        if name != tier and name in _OPTIONAL_IDENTITIES and not path.exists():
+            continue
+        out[path.read_bytes()] = (name, role)
     return out
 
 
@@ -623,7 +632,11 @@ async def secure_server(
     """
     pki = security.home.pki
     needed = [pki.cert_path(tier), pki.key_path(tier), pki.trusted_dir, pki.crl_dir]
-    needed += [pki.cert_path(name) for name in _IDENTITY_ROLES[tier]]
+    needed += [
+        pki.cert_path(name)
+        for name in _IDENTITY_ROLES[tier]
+        if name == tier or name not in _OPTIONAL_IDENTITIES
+    ]
     missing = [str(p) for p in needed if not p.exists()]
     if missing:
         raise SecurityError(

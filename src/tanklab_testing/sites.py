@@ -23,12 +23,14 @@ ENERGIES = ROOT / "configs" / "three_tank_energies_sim.yaml"
 SITE = load_site(ENERGIES)
 PLC_TAGS = plc_tags(SITE)
 TIERS = ("plant", "plc", "supervisor")
-"""The tiers in port order: ``--base-port N`` puts tier k on N + k."""
+"""The control tiers in port order: ``--base-port N`` puts tier k on N + k."""
+PORT_ORDER = (*TIERS, "historian")
+"""Every process of a stack in port order (the historian on N + 3)."""
 
 
 def tier_url(base: int, tier: str, host: str = HOST) -> str:
     """The endpoint of ``tier`` in a stack on ``base`` (plant on base, PLC on base + 1, ...)."""
-    return f"opc.tcp://{host}:{base + TIERS.index(tier)}/tanklab/{tier}"
+    return f"opc.tcp://{host}:{base + PORT_ORDER.index(tier)}/tanklab/{tier}"
 
 
 def site_config(

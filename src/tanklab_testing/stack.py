@@ -1,7 +1,8 @@
 """Plant, PLC and supervisor processes on consecutive loopback ports: the one test and bench Stack.
 
 A :class:`Stack` is a site config, a base port (plant on ``base``, PLC on ``base + 1``,
-supervisor on ``base + 2``, each pointed at the one below) and the :class:`TankctlProcess` of
+supervisor on ``base + 2``, each pointed at the one below; a historian, started by name, on
+``base + 3`` pointed at all three) and the :class:`TankctlProcess` of
 every tier it started. The variations between tests and benchmarks are fields: the speed, the
 plant's state file, a ``--home`` and a log directory (the benchmarks' own security home and
 per-process logs), extra arguments per tier (a retentive-memory file, a trace). Tiers start
@@ -24,7 +25,7 @@ from pathlib import Path
 
 from tanklab_testing.logins import Logins
 from tanklab_testing.procs import TankctlProcess
-from tanklab_testing.sites import HOST, TIERS, tier_url
+from tanklab_testing.sites import HOST, PORT_ORDER, TIERS, tier_url
 
 UP_TIMEOUT_S = 180.0
 """Bound of :meth:`Stack.serving`'s start and stop of all tiers from another thread [s]."""
@@ -96,13 +97,16 @@ class Stack:
             common += ["--speed", f"{self.speed:g}"]
         if self.home is not None:
             common += ["--home", str(self.home)]
-        own = ["--port", str(self.base + TIERS.index(tier))]
+        own = ["--port", str(self.base + PORT_ORDER.index(tier))]
         if tier == "plant" and self.state_file is not None:
             own += ["--state-file", str(self.state_file)]
         elif tier == "plc":
             own += ["--plant-url", self.plant_url]
         elif tier == "supervisor":
             own += ["--plc-url", self.plc_url]
+        elif tier == "historian":
+            own += ["--plant-url", self.plant_url, "--plc-url", self.plc_url]
+            own += ["--supervisor-url", self.supervisor_url]
         return (tier, *common, *own, *self.tier_args.get(tier, ()), *extra)
 
     async def start(self, tier: str, *extra: str) -> TankctlProcess:
@@ -146,7 +150,7 @@ class Stack:
         A tier that had exited by itself is recorded in :attr:`exited` and the end of its log
         goes to stderr (pytest shows it with the failing test: why a server went away).
         """
-        for tier in reversed(TIERS):
+        for tier in reversed(PORT_ORDER):
             proc = self.procs.get(tier)
             if proc is None:
                 continue

@@ -433,3 +433,15 @@ def test_open_store_picks_the_back_end_by_location(tmp_path: Path, pg_server) ->
     assert store_location(tmp_path / "d.db", {"TANKLAB_HISTORIAN_URL": pg_server.url}) == pg_server.url
     with pytest.raises(ValueError, match="schema name"):
         PostgresStore(pg_server.url, schema="x; DROP TABLE y")
+
+
+def test_a_reader_sees_tags_another_connection_interned_after_it_opened(backend) -> None:
+    """The historian writes on one connection and serves reads on another: a tag first recorded
+    after the reader opened is readable there, and listed."""
+    where = backend.location()
+    reader = backend.open(where)
+    writer = backend.open(where)
+    writer.append_samples({"PLC.LIC9.PV": [Sample(10, 0.5), Sample(20, 0.6)]})
+    assert reader.read_raw("PLC.LIC9.PV", 0, 100, limit=10).samples == [Sample(10, 0.5), Sample(20, 0.6)]
+    assert reader.bounds("PLC.LIC9.PV", 15) == (Sample(10, 0.5), Sample(20, 0.6))
+    assert [(r.tag, r.first_us, r.last_us) for r in reader.tags()] == [("PLC.LIC9.PV", 10, 20)]

@@ -38,7 +38,7 @@ def _eager_app() -> typer.Typer:
     simulate_cli.register(app)
     security_cli.register(app)
     app.add_typer(cli.docs_app, name="docs")
-    for command in (cli.linearize, cli.plant, cli.plc, cli.supervisor, cli.up):
+    for command in (cli.linearize, cli.plant, cli.plc, cli.supervisor, cli.historian, cli.up):
         app.command()(command)
     return app
 

@@ -133,17 +133,17 @@ def test_pki_show_json_and_table(pki_home: Path) -> None:
     table = run("pki", "show", "--home", str(pki_home))
     assert table.code == 0
     lines = table.stdout.splitlines()
-    # One line per client file (CA cert DER + PEM, CRL DER + PEM, 3 server certs, trusted/),
+    # One line per client file (CA cert DER + PEM, CRL DER + PEM, 4 server certs, trusted/),
     # a blank line, then the certificate table.
     assert lines[0].startswith("For a client of these servers")
     assert [ln.split()[-1] for ln in lines[1:3]] == ["certificates)"] * 2
     assert [str(pki.ca_cert) in lines[1], str(pki.ca_cert_pem) in lines[2]] == [True, True]
     assert str(pki.crl_file) in lines[3] and str(pki.crl_pem) in lines[4]
-    servers = zip(("plant", "plc", "supervisor"), lines[5:8], strict=True)
-    assert [str(pki.cert_path(n)) in ln for n, ln in servers] == [True] * 3
-    assert str(pki.trusted_dir) in lines[8] and "tankctl pki trust" in lines[8]
-    assert lines[9] == ""
-    assert lines[10].split()[:2] == ["KIND", "NAME"]
+    servers = zip(("plant", "plc", "supervisor", "historian"), lines[5:9], strict=True)
+    assert [str(pki.cert_path(n)) in ln for n, ln in servers] == [True] * 4
+    assert str(pki.trusted_dir) in lines[9] and "tankctl pki trust" in lines[9]
+    assert lines[10] == ""
+    assert lines[11].split()[:2] == ["KIND", "NAME"]
     assert own["plc"]["sha1"] in table.stdout
     assert "MISSING" not in table.stdout
 
@@ -155,7 +155,7 @@ def test_pki_show_marks_a_missing_client_file(tmp_path: Path) -> None:
     assert ran.code == 0, ran.stderr
     ca_line = ran.stdout.splitlines()[1]
     assert str(pki.ca_cert) in ca_line and ca_line.endswith("MISSING (tankctl pki init)")
-    trusted_line = ran.stdout.splitlines()[8]
+    trusted_line = ran.stdout.splitlines()[9]
     assert str(pki.trusted_dir) in trusted_line and "tankctl pki trust" in trusted_line
 
 
@@ -384,8 +384,8 @@ def test_pki_containers_lays_out_each_tier_and_says_where(tmp_path: Path) -> Non
     ran = run("pki", "containers", "--home", str(home))
     assert ran.code == 0, ran.stderr
     lines = ran.stdout.splitlines()
-    for tier, line in zip(("plant", "plc", "supervisor"), lines, strict=False):
-        assert line == f"{tier}: {home / 'containers' / tier} (9 files, owner 10001:10001, key 0600)"
+    for tier, line in zip(("plant", "plc", "supervisor", "historian"), lines, strict=False):
+        assert line == f"{tier}: {home / 'containers' / tier} (10 files, owner 10001:10001, key 0600)"
     assert lines[-1] == f"docker-compose.yml mounts {home / 'containers'}/TIER read-only at /etc/tanklab"
     assert (home / "containers" / "plc" / "pki" / "private" / "plc.pem").stat().st_uid == 10001
 

@@ -268,11 +268,21 @@ class PostgresStore:
 
     # -- reads ----------------------------------------------------------------------------------
 
+    def _read_id(self, tag: str) -> int | None:
+        """The tag's id for a read: the cache, else the database (another connection, the
+        historian's writer, may have interned it since this one opened)."""
+        tag_id = self._tag_ids.get(tag)
+        if tag_id is None:
+            row = self._sql(f"SELECT id FROM {self.schema}.tags WHERE name = %s", (tag,)).fetchone()
+            if row is not None:
+                tag_id = self._tag_ids[tag] = int(row[0])
+        return tag_id
+
     def read_raw(
         self, tag: str, start_us: int, end_us: int, *, limit: int, after_us: int | None = None
     ) -> RawPage:
         check_limit(limit)
-        tag_id = self._tag_ids.get(tag)
+        tag_id = self._read_id(tag)
         if tag_id is None:
             return RawPage([], None)
         lo, hi, reverse = in_range(start_us, end_us, after_us)
@@ -287,7 +297,7 @@ class PostgresStore:
         return RawPage(samples, samples[-1].t_us if more else None)
 
     def bounds(self, tag: str, t_us: int, *, good_only: bool = False) -> Bounds:
-        tag_id = self._tag_ids.get(tag)
+        tag_id = self._read_id(tag)
         if tag_id is None:
             return Bounds(None, None)
         good = f" AND (status & {_GOOD_MASK_I32}) = 0" if good_only else ""
@@ -337,6 +347,7 @@ class PostgresStore:
 
     def tags(self) -> list[TagRange]:
         s = self.schema
+        self._tag_ids = dict(self._sql(f"SELECT name, id FROM {s}.tags").fetchall())
         out = []
         for name, tag_id in sorted(self._tag_ids.items()):
             first = self._sql(

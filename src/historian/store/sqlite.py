@@ -118,6 +118,16 @@ class SQLiteStore:
             raise ValueError(f"{self.path}: schema version {row[0]}, this historian reads {SCHEMA_VERSION}")
         self._tag_ids: dict[str, int] = dict(self._db.execute("SELECT name, id FROM tags"))
 
+    def _read_id(self, tag: str) -> int | None:
+        """The tag's id for a read: the cache, else the database (another connection, the
+        historian's writer, may have interned it since this one opened)."""
+        tag_id = self._tag_ids.get(tag)
+        if tag_id is None:
+            row = self._db.execute("SELECT id FROM tags WHERE name = ?", (tag,)).fetchone()
+            if row is not None:
+                tag_id = self._tag_ids[tag] = int(row[0])
+        return tag_id
+
     # -- writes ---------------------------------------------------------------------------------
 
     def _tag_id(self, tag: str) -> tuple[int, int]:
@@ -181,7 +191,7 @@ class SQLiteStore:
         self, tag: str, start_us: int, end_us: int, *, limit: int, after_us: int | None = None
     ) -> RawPage:
         check_limit(limit)
-        tag_id = self._tag_ids.get(tag)
+        tag_id = self._read_id(tag)
         if tag_id is None:
             return RawPage([], None)
         lo, hi, reverse = in_range(start_us, end_us, after_us)
@@ -196,7 +206,7 @@ class SQLiteStore:
         return RawPage(samples, samples[-1].t_us if more else None)
 
     def bounds(self, tag: str, t_us: int, *, good_only: bool = False) -> Bounds:
-        tag_id = self._tag_ids.get(tag)
+        tag_id = self._read_id(tag)
         if tag_id is None:
             return Bounds(None, None)
         good = " AND (status & 3221225472) = 0" if good_only else ""
@@ -247,6 +257,7 @@ class SQLiteStore:
         return EventPage(events, (events[-1].t_us, events[-1].event_id) if more else None)
 
     def tags(self) -> list[TagRange]:
+        self._tag_ids = dict(self._db.execute("SELECT name, id FROM tags"))
         out = []
         for name, tag_id in sorted(self._tag_ids.items()):
             first = self._db.execute(

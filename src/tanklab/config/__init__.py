@@ -33,6 +33,7 @@ from tanklab.config.base import (
     NonNegFloat,
     PositiveFloat,
 )
+from tanklab.config.historian import HistorianConfig, RetentionConfig
 from tanklab.config.load import (
     ENV_ENDPOINT_VARS,
     apply_env_overrides,
@@ -91,6 +92,7 @@ __all__ = [
     "Finite",
     "Fraction",
     "GainBox",
+    "HistorianConfig",
     "InterlockSpec",
     "LoopSpec",
     "Model",
@@ -106,6 +108,7 @@ __all__ = [
     "PlcWatchdog",
     "PositiveFloat",
     "PumpSpec",
+    "RetentionConfig",
     "SiteConfig",
     "StackConfig",
     "SupervisorConfig",

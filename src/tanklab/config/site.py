@@ -8,6 +8,7 @@ from pydantic import Field, model_validator
 
 from tanklab.alarms import names as alarm_names
 from tanklab.config.base import Model
+from tanklab.config.historian import HistorianConfig
 from tanklab.config.plant import PlantConfig
 from tanklab.config.plc import InterlockSpec, PlcConfig
 from tanklab.config.supervisor import SupervisorConfig
@@ -30,6 +31,7 @@ class Endpoints(Model):
     plant: Endpoint = Field(default_factory=lambda: Endpoint(port=4840), description="Plant simulator.")
     plc: Endpoint = Field(default_factory=lambda: Endpoint(port=4841), description="Soft PLC.")
     supervisor: Endpoint = Field(default_factory=lambda: Endpoint(port=4842), description="Supervisor.")
+    historian: Endpoint = Field(default_factory=lambda: Endpoint(port=4843), description="Historian.")
 
 
 class StackConfig(Model):
@@ -47,6 +49,7 @@ class SiteConfig(Model):
     plant: PlantConfig = Field(description="The physical plant.")
     plc: PlcConfig | None = Field(None, description="The PLC program.")
     supervisor: SupervisorConfig | None = Field(None, description="The supervisor.")
+    historian: HistorianConfig = Field(default_factory=HistorianConfig, description="The historian tier.")
     endpoints: Endpoints = Field(default_factory=Endpoints, description="OPC UA endpoints.")
     stack: StackConfig = Field(default_factory=StackConfig, description="How `tankctl up` runs the tiers.")
 
