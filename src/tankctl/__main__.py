@@ -1,5 +1,5 @@
 """``python -m tankctl``."""
 
-from tankctl.cli import main
+from tankctl.entry import main
 
 main()

@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 import typer
+from typer._click import Command, Context
 
+from tankctl.entry import imports_done
 from tankctl.lazy import Lazy, LazyGroup
 from tankctl.ops import COMMANDS as OPERATOR_COMMANDS
 from tanklab.errors import TanklabError
@@ -62,6 +64,14 @@ class TankctlGroup(LazyGroup):
         "user",
         "docs",
     )
+
+    def resolve_command(self, ctx: Context, args: list[str]) -> tuple[str | None, Command | None, list[str]]:
+        """The command to run, imported; then the garbage collector is on again
+        (:func:`tankctl.entry.imports_done`)."""
+        try:
+            return super().resolve_command(ctx, args)
+        finally:
+            imports_done()
 
 
 app = typer.Typer(

@@ -33,7 +33,7 @@ from asyncua import ua
 from tanklab.paths import PROBE_PATHS
 from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.ua_client import new_client, resolve
-from tanklab_io.ua_security import ClientIdentity, secure_client
+from tanklab_io.ua_client_security import ClientIdentity, secure_client
 
 DEFAULT_PATHS = PROBE_PATHS
 """Node read by default, keyed by the URL's last path element (the tier)."""

@@ -48,25 +48,13 @@ from asyncua.server.address_space import AttributeService
 
 from tanklab.tags import NAMESPACE_URI, DataType, Role, Tag
 from tanklab_io.audit import AuditLog
+from tanklab_io.ua_values import DATATYPE_IDS as _DATATYPE_ID
+from tanklab_io.ua_values import VARIANT_TYPES as _VARIANT
+from tanklab_io.ua_values import python_value as _python_value
+from tanklab_io.ua_values import stored_variant as _stored
+from tanklab_io.ua_values import variant
 
 log = logging.getLogger(__name__)
-
-_VARIANT = {
-    DataType.DOUBLE: ua.VariantType.Double,
-    DataType.INT32: ua.VariantType.Int32,
-    DataType.UINT32: ua.VariantType.UInt32,
-    DataType.BOOLEAN: ua.VariantType.Boolean,
-    DataType.STRING: ua.VariantType.String,
-    DataType.DOUBLE_ARRAY: ua.VariantType.Double,
-}
-_DATATYPE_ID = {
-    DataType.DOUBLE: ua.ObjectIds.Double,
-    DataType.INT32: ua.ObjectIds.Int32,
-    DataType.UINT32: ua.ObjectIds.UInt32,
-    DataType.BOOLEAN: ua.ObjectIds.Boolean,
-    DataType.STRING: ua.ObjectIds.String,
-    DataType.DOUBLE_ARRAY: ua.ObjectIds.Double,
-}
 
 MethodHandler = Callable[..., Awaitable[list[ua.Variant] | ua.StatusCode]]
 """A method implementation: ``async (*python_args) -> outputs or StatusCode``."""
@@ -125,31 +113,6 @@ def authorize(tag: Tag, user: User | None, old: Any = None, new: Any = None) -> 
         except (TypeError, ValueError):
             return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
     return None
-
-
-def _python_value(data_type: DataType, value: Any) -> Any:
-    """``value`` as the Python type a tag of ``data_type`` stores (arrays as lists of float)."""
-    if data_type == DataType.DOUBLE_ARRAY:
-        return [float(v) for v in value]
-    if data_type == DataType.DOUBLE:
-        return float(value)
-    if data_type in (DataType.INT32, DataType.UINT32):
-        return int(value)
-    if data_type == DataType.BOOLEAN:
-        return bool(value)
-    return str(value)
-
-
-def variant(tag: Tag, value: Any) -> ua.Variant:
-    """The Variant a tag's value is stored as (arrays as Double arrays)."""
-    if tag.data_type is None:
-        raise ValueError(f"{tag.path} is a method, not a variable")
-    return _stored(tag.data_type, _python_value(tag.data_type, value))
-
-
-def _stored(data_type: DataType, value: Any) -> ua.Variant:
-    """The Variant of a value already of its Python type (:func:`_python_value`)."""
-    return ua.Variant(value, _VARIANT[data_type], is_array=data_type == DataType.DOUBLE_ARRAY)
 
 
 def _argument(arg: Any) -> ua.Argument:

@@ -25,7 +25,7 @@ from asyncua import Client, Node, ua
 from tanklab.clock import Clock, MonotonicClock
 from tanklab.errors import LinkError
 from tanklab.tags import NAMESPACE_URI, Tag, link_status_paths
-from tanklab_io.ua import variant
+from tanklab_io.ua_values import variant
 
 log = logging.getLogger(__name__)
 

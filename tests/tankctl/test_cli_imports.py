@@ -42,10 +42,13 @@ HEAVY = (
 what builds on them), plotting, and the tiers' own code (the CLI talks to them over OPC UA)."""
 
 # Runs tankctl's console-script entry point with the given argv, then prints the modules that
-# were loaded, as JSON on the last line of stderr (stdout stays the command's own).
+# were loaded, as JSON on the last line of stderr (stdout stays the command's own), with the
+# marker GC_ON among them when the garbage collector is enabled at the end (tankctl.entry turns
+# it off while the CLI imports and back on once the command is imported: decision 0044).
+GC_ON = "<gc enabled>"
 _RUN_AND_LIST = (
-    "import json, sys\n"
-    "from tankctl.cli import main\n"
+    "import gc, json, sys\n"
+    "from tankctl.entry import main\n"
     "sys.argv = ['tankctl', *sys.argv[1:]]\n"
     "try:\n"
     "    main()\n"
@@ -53,7 +56,7 @@ _RUN_AND_LIST = (
     "    code = e.code\n"
     "else:\n"
     "    code = 0\n"
-    "print(json.dumps(sorted(sys.modules)), file=sys.stderr)\n"
+    f"print(json.dumps(sorted(sys.modules) + ([{GC_ON!r}] if gc.isenabled() else [])), file=sys.stderr)\n"
     "sys.exit(code)\n"
 )
 
@@ -163,6 +166,13 @@ async def test_setpoint_and_status_against_a_real_plc_load_no_numerics() -> None
         # Nor what only other commands use (decision 0039): rich, the scenario models.
         assert {"asyncua", "tankctl.ops.writes"} <= set(modules)
         assert not {"rich", "tanklab.scenario", "tankctl.ops.status", "tankctl.security_cli"} & set(modules)
+        # Nor the server side of the transport (decision 0044): the client half of the security
+        # module and the value conversion are modules of their own.
+        server_side = {"tanklab_io.ua", "tanklab_io.ua_security", "tanklab_io.audit", "tanklab_io.conditions"}
+        assert {"tanklab_io.ua_client_security", "tanklab_io.ua_values"} <= set(modules)
+        assert not server_side & set(modules)
+        assert not {"tanklab.alarms.condition", "tanklab.alarms.manager"} & set(modules)
+        assert GC_ON in modules  # the collector is back on once the command is imported
         async with await secure(f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc") as client:
             sp = await (await resolve(client, ["PLC.LIC1.SP"]))["PLC.LIC1.SP"].read_value()
         assert sp == pytest.approx(0.45)

@@ -22,7 +22,7 @@ from tankctl.ops.errors import (
 from tanklab.errors import LinkError, SecurityError, TanklabError
 from tanklab.tags import NAMESPACE_URI, Tag, Tier, identity_paths
 from tanklab_io.ua_client import NAMESPACE_ARRAY, TANKLAB_INDEX, ConnectError, Link
-from tanklab_io.ua_security import cli_identity, client_setup
+from tanklab_io.ua_client_security import cli_identity, client_setup
 
 if TYPE_CHECKING:
     from tankctl.ops.stack import Stack

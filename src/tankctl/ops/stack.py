@@ -19,7 +19,7 @@ from tankctl.ops.errors import SiteMismatchError, UnreachableError, UsageError
 from tanklab.config import ENV_ENDPOINT_VARS, Endpoints, SiteConfig, load_site, parse_endpoint_url
 from tanklab.identity import SiteIdentity, site_from_json
 from tanklab.tags import TIER_ROOTS, Tag, Tier, plant_tags, plc_tags, supervisor_tags, tags_by_path
-from tanklab_io.ua_security import ClientIdentity, cli_identity
+from tanklab_io.ua_client_security import ClientIdentity, cli_identity
 
 TIERS: tuple[Tier, ...] = ("plant", "plc", "supervisor")
 """The tiers in port order: ``--base-port N`` puts them at N, N+1, N+2."""
