@@ -154,7 +154,9 @@ class _Handler:
         self.collector.on_data(node, data.monitored_item.Value)
 
     def event_notification(self, event: Any) -> None:
-        self.collector.on_event(event.get_event_props_as_fields_dict())
+        # asyncua's fields dict holds Variants: the record takes their values
+        fields = event.get_event_props_as_fields_dict()
+        self.collector.on_event({k: v.Value for k, v in fields.items()})
 
     def status_change_notification(self, status: Any) -> None:
         log.warning("%s subscription status change: %s", self.collector.tier, status)

@@ -40,6 +40,7 @@ class TankctlGroup(LazyGroup):
             name: Lazy(f"tankctl.ops.{module}", func, one_line_usage=True)
             for name, (module, func) in OPERATOR_COMMANDS.items()
         },
+        "history": Lazy("tankctl.history_cli", "history_command", one_line_usage=True),
         "simulate": Lazy("tankctl.simulate_cli", "simulate_command"),
         "compare": Lazy("tankctl.simulate_cli", "compare_command"),
         "tune": Lazy("tankctl.tune_cli", "app", group=True),
@@ -49,6 +50,7 @@ class TankctlGroup(LazyGroup):
     }
     order: ClassVar[tuple[str, ...]] = (
         *OPERATOR_COMMANDS,
+        "history",
         "simulate",
         "compare",
         "linearize",

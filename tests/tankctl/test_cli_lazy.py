@@ -23,7 +23,8 @@ ENV = {"COLUMNS": "100", "TERMINAL_WIDTH": "100"}
 
 
 def _eager_app() -> typer.Typer:
-    from tankctl import cli, ops, security_cli, simulate_cli, tune_cli
+    from tankctl import cli, history_cli, ops, security_cli, simulate_cli, tune_cli
+    from tankctl.usage import OneLineUsage
 
     app = typer.Typer(
         name="tankctl",
@@ -35,6 +36,7 @@ def _eager_app() -> typer.Typer:
     app.add_typer(cli.config_app, name="config")
     app.add_typer(tune_cli.app, name="tune")
     ops.register(app)
+    app.command("history", cls=OneLineUsage)(history_cli.history_command)
     simulate_cli.register(app)
     security_cli.register(app)
     app.add_typer(cli.docs_app, name="docs")

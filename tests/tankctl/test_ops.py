@@ -38,6 +38,7 @@ from tankctl.ops import (
     sparkline,
 )
 from tankctl.ops import Stack as OpsStack
+from tankctl.ops.stack import ENDPOINT_TIERS
 from tanklab.config import load_site
 from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
@@ -185,7 +186,7 @@ def one_line(text: str) -> str:
 def test_endpoint_precedence_flags_env_base_port_site() -> None:
     site = load_site(CONFIG)
     default = resolve_endpoints(site, urls={}, env={})
-    assert default == {t: f"opc.tcp://127.0.0.1:{4840 + k}/tanklab/{t}" for k, t in enumerate(TIERS)}
+    assert default == {t: f"opc.tcp://127.0.0.1:{4840 + k}/tanklab/{t}" for k, t in enumerate(ENDPOINT_TIERS)}
     by_base = resolve_endpoints(site, urls={}, env={}, base_port=5000, host="10.0.0.7")
     assert by_base["supervisor"] == "opc.tcp://10.0.0.7:5002/tanklab/supervisor"
     env = {"TANKLAB_BASE_PORT": "6000", "TANKLAB_PLC_URL": "opc.tcp://plc.example:7000/tanklab/plc"}
@@ -194,19 +195,24 @@ def test_endpoint_precedence_flags_env_base_port_site() -> None:
         "plant": "opc.tcp://p:1/x",  # flag
         "plc": "opc.tcp://plc.example:7000/tanklab/plc",  # environment
         "supervisor": "opc.tcp://127.0.0.1:6002/tanklab/supervisor",  # TANKLAB_BASE_PORT
+        "historian": "opc.tcp://127.0.0.1:6003/tanklab/historian",
     }
+    env = {"TANKLAB_HISTORIAN_ENDPOINT": "opc.tcp://h:9/tanklab/historian", "TANKLAB_HISTORIAN_URL": "x.db"}
+    assert resolve_endpoints(site, urls={}, env=env)["historian"] == "opc.tcp://h:9/tanklab/historian"
+    with pytest.raises(UsageError, match=re.escape("--historian-url: not an opc.tcp")):
+        resolve_endpoints(site, urls={"historian": "postgresql://x"}, env={})
     assert resolve_endpoints(site, urls={}, env={}, host="h")["plc"] == "opc.tcp://h:4841/tanklab/plc"
     with pytest.raises(UsageError, match=re.escape("--plc-url: not an opc.tcp")):
         resolve_endpoints(site, urls={"plc": "http://x"}, env={})
     with pytest.raises(UsageError, match="TANKLAB_BASE_PORT must be a port number"):
         resolve_endpoints(site, urls={}, env={"TANKLAB_BASE_PORT": "abc"})
-    with pytest.raises(UsageError, match=re.escape("--base-port must be 1..65533")):
-        resolve_endpoints(site, urls={}, env={}, base_port=65534)
+    with pytest.raises(UsageError, match=re.escape("--base-port must be 1..65532 (four consecutive ports)")):
+        resolve_endpoints(site, urls={}, env={}, base_port=65533)
 
 
 def test_endpoints_without_a_site_are_the_default_ones() -> None:
     default = resolve_endpoints(None, urls={}, env={})
-    assert default == {t: f"opc.tcp://127.0.0.1:{4840 + k}/tanklab/{t}" for k, t in enumerate(TIERS)}
+    assert default == {t: f"opc.tcp://127.0.0.1:{4840 + k}/tanklab/{t}" for k, t in enumerate(ENDPOINT_TIERS)}
 
 
 def _identity(site_config: str) -> dict[str, str]:

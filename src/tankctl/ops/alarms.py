@@ -34,6 +34,8 @@ from asyncua import ua
 
 from tankctl.ops.client import TierClient
 from tankctl.ops.errors import UnreachableError, UsageError
+from tankctl.ops.history_output import render_events
+from tankctl.ops.history_read import parse_time, read_event_history
 from tankctl.ops.options import JsonOpt, StackOptions, stack_command
 from tankctl.ops.run import check_usage, fail, run
 from tankctl.ops.stack import Stack
@@ -315,12 +317,33 @@ def alarms(
     every: Annotated[
         bool, typer.Option("--all", help="Every condition, not only the standing ones.")
     ] = False,
+    history: Annotated[
+        bool,
+        typer.Option(
+            "--history",
+            help="The alarm and audit events the historian recorded in [--from, --to].",
+        ),
+    ] = False,
+    start: Annotated[
+        str, typer.Option("--from", help="--history: start (ISO 8601 UTC, now, -15m, -1d).")
+    ] = "-1h",
+    end: Annotated[str, typer.Option("--to", help="--history: end (as --from).")] = "now",
+    min_severity: Annotated[
+        int, typer.Option(help="--history: only events of at least this Severity (1..1000).")
+    ] = 0,
+    historian_url: Annotated[
+        str | None, typer.Option(help="--history: historian endpoint (env TANKLAB_HISTORIAN_ENDPOINT).")
+    ] = None,
     *,
     options: StackOptions,
 ) -> None:
     """The standing alarms (active or unacknowledged) of the PLC and the supervisor: tier,
     priority, state, limit, since, message. A tier that is down is one line on stderr (exit 0
-    while another tier answers, 2 when none does)."""
+    while another tier answers, 2 when none does). With --history: the events the historian
+    recorded (time, severity, source, message)."""
+    if history:
+        _alarm_history(json_out, start, end, min_severity, historian_url, options)
+        return
     stack = options.stack()
 
     async def main() -> int:
@@ -333,6 +356,33 @@ def alarms(
         for e in down:
             typer.echo(f"tankctl: {e} (its alarms are not listed)", err=True)
         return 2 if down and len(down) == len(alarm_tiers(stack)) else 0
+
+    run(main)
+
+
+def _alarm_history(
+    json_out: bool, start: str, end: str, min_severity: int, historian_url: str | None, options: StackOptions
+) -> None:
+    """``alarms --history``: one ReadEventDetails of the historian's Server object."""
+    now = datetime.now(UTC)
+
+    def parsed() -> tuple[datetime, datetime]:
+        t0, t1 = parse_time(start, now, "--from"), parse_time(end, now, "--to")
+        if t0 >= t1:
+            raise UsageError(f"--from {start!r} is not before --to {end!r}")
+        if not 0 <= min_severity <= 1000:
+            raise UsageError(f"--min-severity must be 0..1000, got {min_severity}")
+        return t0, t1
+
+    t0, t1 = check_usage(parsed)
+    stack = options.stack(historian_url=historian_url)
+
+    async def main() -> int:
+        await stack.resolve("historian")
+        async with stack.client("historian") as client:
+            rows = await read_event_history(client.client, t0, t1, min_severity=min_severity)
+        typer.echo(render_events(rows, json_out))
+        return 0
 
     run(main)
 

@@ -26,6 +26,7 @@ from typing import Any
 from asyncua import Client, ua
 
 from tankctl.ops.errors import UsageError
+from tanklab.errors import TanklabError
 
 AGGREGATES: dict[str, int] = {
     "avg": ua.ObjectIds.AggregateFunction_Average,
@@ -129,7 +130,7 @@ class EventRow:
         }
 
 
-class HistoryReadError(Exception):
+class HistoryReadError(TanklabError):
     """The historian refused a read: the tag and the status code's name."""
 
     def __init__(self, tag: str, status: ua.StatusCode) -> None:

@@ -41,8 +41,8 @@ HostOpt = Annotated[
 BasePortOpt = Annotated[
     int | None,
     typer.Option(
-        help="Plant at N, PLC at N+1, supervisor at N+2 (env TANKLAB_BASE_PORT; default: the config's "
-        "endpoints, 4840..4842)."
+        help="Plant at N, PLC at N+1, supervisor at N+2, historian at N+3 (env TANKLAB_BASE_PORT; "
+        "default: the config's endpoints, 4840..4843)."
     ),
 ]
 PlantUrlOpt = Annotated[str | None, typer.Option(help="Plant endpoint (env TANKLAB_PLANT_URL).")]
@@ -67,8 +67,9 @@ class StackOptions:
     timeout: float = DEFAULT_TIMEOUT_S
     """Wall-time bound of connecting and of every request [s] (``--timeout``)."""
 
-    def stack(self, endpoints_of: SiteConfig | None = None) -> Stack:
-        """The :class:`Stack` of these options (:func:`make_stack`); a failure is one line, exit 2."""
+    def stack(self, endpoints_of: SiteConfig | None = None, historian_url: str | None = None) -> Stack:
+        """The :class:`Stack` of these options (:func:`make_stack`; ``historian_url``: the
+        ``--historian-url`` of the commands that read history); a failure is one line, exit 2."""
         try:
             return make_stack(
                 self.config,
@@ -79,6 +80,7 @@ class StackOptions:
                 self.supervisor_url,
                 self.timeout,
                 endpoints_of=endpoints_of,
+                historian_url=historian_url,
             )
         except TanklabError as e:
             raise fail(str(e), 2) from None

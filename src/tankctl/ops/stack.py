@@ -18,17 +18,36 @@ from tankctl.ops.client import TierClient
 from tankctl.ops.errors import SiteMismatchError, UnreachableError, UsageError
 from tanklab.config import ENV_ENDPOINT_VARS, Endpoints, SiteConfig, load_site, parse_endpoint_url
 from tanklab.identity import SiteIdentity, site_from_json
-from tanklab.tags import TIER_ROOTS, Tag, Tier, plant_tags, plc_tags, supervisor_tags, tags_by_path
+from tanklab.tags import (
+    TIER_ROOTS,
+    Tag,
+    Tier,
+    historian_tags,
+    plant_tags,
+    plc_tags,
+    supervisor_tags,
+    tags_by_path,
+)
 from tanklab_io.ua_client_security import ClientIdentity, cli_identity
 
 TIERS: tuple[Tier, ...] = ("plant", "plc", "supervisor")
-"""The tiers in port order: ``--base-port N`` puts them at N, N+1, N+2."""
+"""The control tiers in port order: ``--base-port N`` puts them at N, N+1, N+2."""
+ENDPOINT_TIERS: tuple[Tier, ...] = (*TIERS, "historian")
+"""Every tier with an endpoint, in port order: the historian at N+3 (``tankctl history``)."""
+HISTORIAN_ENDPOINT_VAR = "TANKLAB_HISTORIAN_ENDPOINT"
+"""The historian's OPC UA endpoint in the environment (``TANKLAB_HISTORIAN_URL`` is its store)."""
 
 DEFAULT_TIMEOUT_S = 3.0
 """Wall-time bound of connecting and of every request [s]."""
 
 
-_URL_FLAGS = {"plant": "--plant-url", "plc": "--plc-url", "supervisor": "--supervisor-url"}
+_URL_FLAGS = {
+    "plant": "--plant-url",
+    "plc": "--plc-url",
+    "supervisor": "--supervisor-url",
+    "historian": "--historian-url",
+}
+_ENV_VARS: dict[Tier, str] = {**ENV_ENDPOINT_VARS, "historian": HISTORIAN_ENDPOINT_VAR}  # type: ignore[dict-item]
 
 
 def _parse_base_port(text: str, source: str) -> int:
@@ -48,26 +67,27 @@ def resolve_endpoints(
 ) -> dict[Tier, str]:
     """Endpoint URL of each tier, by precedence.
 
-    For each tier: its URL flag (``urls[tier]``), else ``TANKLAB_<TIER>_URL`` in ``env``, else
-    ``base_port`` (or ``TANKLAB_BASE_PORT``) + 0, 1, 2 for plant, plc, supervisor on ``host``
-    (default 127.0.0.1), else the site's endpoint (``None``: the default endpoints, 4840..4842 on
-    127.0.0.1) with ``host`` replacing its host when given. Empty strings count as unset.
+    For each tier: its URL flag (``urls[tier]``), else ``TANKLAB_<TIER>_URL`` in ``env`` (the
+    historian's: ``TANKLAB_HISTORIAN_ENDPOINT``), else ``base_port`` (or ``TANKLAB_BASE_PORT``)
+    + 0, 1, 2, 3 for plant, plc, supervisor, historian on ``host`` (default 127.0.0.1), else the
+    site's endpoint (``None``: the default endpoints, 4840..4843 on 127.0.0.1) with ``host``
+    replacing its host when given. Empty strings count as unset.
 
     Raises
     ------
     UsageError
-        A URL that is not ``opc.tcp://HOST:PORT[/path]``, or a base port outside 1..65533.
+        A URL that is not ``opc.tcp://HOST:PORT[/path]``, or a base port outside 1..65532.
     """
     base = base_port
     source = "--base-port"
     if base is None and env.get("TANKLAB_BASE_PORT"):
         source = "TANKLAB_BASE_PORT"
         base = _parse_base_port(env["TANKLAB_BASE_PORT"], source)
-    if base is not None and not 1 <= base <= 65533:
-        raise UsageError(f"{source} must be 1..65533 (three consecutive ports), got {base}")
+    if base is not None and not 1 <= base <= 65532:
+        raise UsageError(f"{source} must be 1..65532 (four consecutive ports), got {base}")
     out: dict[Tier, str] = {}
-    for k, tier in enumerate(TIERS):
-        flag, var = urls.get(tier), ENV_ENDPOINT_VARS[tier]
+    for k, tier in enumerate(ENDPOINT_TIERS):
+        flag, var = urls.get(tier), _ENV_VARS[tier]
         url = flag or env.get(var) or None
         if url:
             try:
@@ -205,7 +225,12 @@ class Stack:
     def tags(self, tier: Tier) -> dict[str, Tag]:
         """The contract's tags of ``tier`` for this site, by path."""
         if tier not in self._tags:
-            build = {"plant": plant_tags, "plc": plc_tags, "supervisor": supervisor_tags}[tier]
+            build = {
+                "plant": plant_tags,
+                "plc": plc_tags,
+                "supervisor": supervisor_tags,
+                "historian": historian_tags,
+            }[tier]
             self._tags[tier] = tags_by_path(build(self.site))
         return self._tags[tier]
 
@@ -256,6 +281,7 @@ def make_stack(
     timeout: float,
     *,
     endpoints_of: SiteConfig | None = None,
+    historian_url: str | None = None,
 ) -> Stack:
     """The :class:`Stack` from the common options; every failure is a :class:`TanklabError`.
 
@@ -272,7 +298,7 @@ def make_stack(
         given, source = load_site(e), f"TANKLAB_CONFIG={e}"
     urls = resolve_endpoints(
         given or endpoints_of,
-        urls={"plant": plant_url, "plc": plc_url, "supervisor": supervisor_url},
+        urls={"plant": plant_url, "plc": plc_url, "supervisor": supervisor_url, "historian": historian_url},
         env=os.environ,
         base_port=base_port,
         host=host,
