@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 from helpers import ROOT
 from tankctl.cli import app
+from tankctl.ops.alarm_summary import summary_json, summary_line, summary_paths, unacknowledged_line
 from tankctl.ops.alarms import (
     LIMIT_FIELD,
     STATE_FIELDS,
@@ -228,3 +229,49 @@ def test_an_unknown_alarm_names_both_tiers_before_connecting() -> None:
     r = CliRunner().invoke(app, ["unshelve", "Nope", "--config", config, "--base-port", "1"])
     assert r.exit_code == 2
     assert "; the supervisor has MpcFailing, AdaptationUnhealthy, PlcLinkLost)" in r.output
+
+
+# ---- the alarm summary of status and the board --------------------------------------------
+
+
+def _summary_values(tier: str, *values: int | bool) -> dict[str, int | bool]:
+    root = "PLC" if tier == "plc" else "Supervisor"
+    items = ("Active", "Unacknowledged", "Shelved", "Suppressed", "Disabled", "RatePer10Min")
+    items += ("PeakRatePer10Min", "Flood")
+    return {f"{root}.AlarmSummary.{i}": v for i, v in zip(items, values, strict=True)}
+
+
+def test_the_summary_json_and_its_line() -> None:
+    doc = summary_json("plc", _summary_values("plc", 2, 1, 0, 0, 0, 3, 4, False))
+    assert doc == {
+        "active": 2,
+        "unacknowledged": 1,
+        "shelved": 0,
+        "suppressed": 0,
+        "disabled": 0,
+        "rate_per_10min": 3,
+        "peak_rate_per_10min": 4,
+        "flood": False,
+    }
+    assert (
+        summary_line("plc", doc)
+        == "PLC alarms: 2 active, 1 unacknowledged, 0 shelved, rate 3/10 min (peak 4)"
+    )
+    flood = summary_json("supervisor", _summary_values("supervisor", 12, 12, 1, 2, 1, 11, 11, True))
+    assert summary_line("supervisor", flood) == (
+        "supervisor alarms: 12 active, 12 unacknowledged, 1 shelved, 2 suppressed, 1 disabled, "
+        "rate 11/10 min (peak 11), FLOOD"
+    )
+    assert summary_line("plc", summary_json("plc", {})) == "PLC alarms: no summary"
+    assert summary_paths("plc") == list(_summary_values("plc", 0, 0, 0, 0, 0, 0, 0, False))
+
+
+def test_the_boards_unacknowledged_line() -> None:
+    assert (
+        unacknowledged_line({"plc": {"unacknowledged": 1, "flood": False}}) == "unacknowledged alarms: PLC 1"
+    )
+    both = {
+        "plc": {"unacknowledged": 11, "flood": True},
+        "supervisor": {"unacknowledged": None, "flood": None},
+    }
+    assert unacknowledged_line(both) == "unacknowledged alarms: PLC 11 FLOOD, supervisor ?"
