@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from asyncua import ua
+from rich.console import Console
 from typer.testing import CliRunner
 
 from helpers import ROOT
@@ -25,6 +27,7 @@ from tankctl.ops.alarms import (
     render_rows,
 )
 from tankctl.ops.errors import UsageError
+from tankctl.up_board import Board
 from tanklab.alarms.definitions import plc_alarms, supervisor_alarms
 from tanklab.alarms.model import ConditionKind
 from tanklab.config import load_site
@@ -275,3 +278,17 @@ def test_the_boards_unacknowledged_line() -> None:
         "supervisor": {"unacknowledged": None, "flood": None},
     }
     assert unacknowledged_line(both) == "unacknowledged alarms: PLC 11 FLOOD, supervisor ?"
+
+
+def test_the_up_board_renders_the_unacknowledged_line_from_the_summary_nodes() -> None:
+    tier = SimpleNamespace(log_path="x.log", url="opc.tcp://127.0.0.1:1/x")
+    tiers = {"plant": tier, "plc": tier, "supervisor": tier}
+    local = SimpleNamespace(site=SITE, clock="realtime", speed=1.0, tiers=tiers, link=lambda *a: None)
+    board = Board(local)  # type: ignore[arg-type]
+    assert "PLC.AlarmSummary.Unacknowledged" in board.plc_paths  # read with the board's one Read
+    assert "Supervisor.AlarmSummary.Flood" in board.sup_paths
+    board.values = _summary_values("plc", 3, 2, 0, 0, 0, 11, 11, True)
+    board.values |= _summary_values("supervisor", 0, 0, 0, 0, 0, 0, 0, False)
+    console = Console(width=120, record=True)
+    console.print(board.render([]))
+    assert "unacknowledged alarms: PLC 2 FLOOD, supervisor 0" in console.export_text().splitlines()
