@@ -6,7 +6,8 @@ then agree with a recount of every condition's state nodes read in the same Read
 active and unacknowledged among them, the peak rate at least that one activation). After
 Acknowledge the recount agrees again with T1Level acknowledged; a one-shot shelve makes Shelved
 exactly 1 and an engineer's Disable of LIC2PvBad Disabled exactly 1 (nothing else shelves or
-disables). Waits are on events and node values (``wait_until``), never on elapsed time.
+disables); 600 s of model time after the last activation RatePer10Min is 0 again, its peak kept.
+Waits are on events and node values (``wait_until``), never on elapsed time.
 """
 
 from __future__ import annotations
@@ -171,3 +172,13 @@ async def test_the_summary_follows_a_leak_an_acknowledge_a_shelve_and_a_disable(
         reader = Reader(eng, idx)
         await wait_until(lambda: consistent(True), 20, what="the summary after the disable")
         assert seen["summary"]["Disabled"] == 1 and seen["summary"]["Shelved"] == 1
+
+        # 600 s of model time (30 s of wall time at speed 20) after the last activation the rate
+        # is back to 0, with no condition event to trigger it (rate_expiring), the peak kept.
+        async def rate_expired() -> bool:
+            s, _ = await reader.read()
+            seen["summary"] = s
+            return bool(s["RatePer10Min"] == 0)
+
+        await wait_until(rate_expired, 90, what="the rate window to pass on model time")
+        assert seen["summary"]["PeakRatePer10Min"] >= 1 and seen["summary"]["Flood"] is False
