@@ -23,7 +23,9 @@ scan (:func:`flood_conditions`; a unit test checks it on the PLC program).
    it, same machine clock);
 3. one client acknowledges all 18 with the EventIds just received: in one Call request of 18
    method calls, or (alternate rounds) in 18 Call requests one after the other; the 18
-   acknowledged events are counted and timed from the first request sent;
+   acknowledged events are counted and timed from the first request sent; the PLC's alarm
+   summary (``PLC.AlarmSummary.RatePer10Min``, ``Flood``, ``Unacknowledged``) is read once the
+   activation is counted and one scan period after the last acknowledgement;
 4. the fault is cleared (one Write): the 9 level conditions return to normal; the interlock is
    reset (``PLC.Interlock.Reset``): the 9 latched trips return to normal; the trips, configured
    for confirmation, are confirmed in one Call (9 events).
@@ -184,6 +186,13 @@ class Round:
     after the last acknowledged event [s]."""
     ack_cpu_s: float = float("nan")
     """PLC CPU time from the first Call request to the last acknowledged event [s]."""
+    summary_rate: int = -1
+    """``PLC.AlarmSummary.RatePer10Min`` once the activation is counted (-1: not read): this
+    round's conditions plus the earlier rounds' still in the 600 s window."""
+    summary_flood: bool | None = None
+    """``PLC.AlarmSummary.Flood`` then (a round raises more than 10: true)."""
+    summary_unacked_after_ack: int = -1
+    """``PLC.AlarmSummary.Unacknowledged`` one scan period after the last acknowledged event."""
     return_events: int = 0
     """Returns to normal received (levels after the fault is cleared, trips after the reset)."""
     confirm_events: int = 0
@@ -403,6 +412,19 @@ async def one_round(
         rnd.activation_scan_s = poller.scans[after[0]].duration_s
         rnd.activation_scan_alarms = poller.scans[after[0]].hh
 
+    # the alarm summary: the flood counted (its Unacknowledged covers the round's conditions)
+    summary = paths.alarm_summary_paths("plc")
+    summary_nodes = [
+        op.get_node(ua.NodeId(summary[k], idx)) for k in ("RatePer10Min", "Flood", "Unacknowledged")
+    ]
+    deadline = time.monotonic() + EVENT_TIMEOUT_S
+    while True:
+        rate, flood, unacked = await op.read_values(summary_nodes)
+        if unacked >= len(cids) or time.monotonic() > deadline:
+            break
+        await asyncio.sleep(0.05)
+    rnd.summary_rate, rnd.summary_flood = int(rate), bool(flood)
+
     # 3: acknowledge them all, with the EventIds just received
     ids = bench.latest(cids)
     requests = [
@@ -426,6 +448,7 @@ async def one_round(
     rnd.ack_latency_s = last_ack - t0
     await wait_for("a scan after the acknowledgements", lambda: time.time() > last_ack + period_s, 10.0)
     await poller.read()
+    rnd.summary_unacked_after_ack = int(await summary_nodes[2].read_value())
     until = last_ack + period_s
     during = [s.duration_s for n, s in poller.scans.items() if n >= scan_at_call and s.first_seen <= until]
     rnd.ack_scan_s = max(during) if during else float("nan")

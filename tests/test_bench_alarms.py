@@ -23,7 +23,7 @@ from benchmarks.alarms import (
     flood_conditions,
     flood_site,
 )
-from benchmarks.report.alarms_section import goals, markdown, overruns, rate
+from benchmarks.report.alarms_section import goals, markdown, overruns, rate, summary_goal
 from benchmarks.stack import Lateness
 
 from plc_emulator.program import PlcProgram, ScanInputs
@@ -92,6 +92,9 @@ def _round(index: int, mode: str, activation_s: float, ack_s: float, **kw: float
         confirm_events=9,
         overruns_before=3,
         overruns_after=3,
+        summary_rate=18 * index,
+        summary_flood=True,
+        summary_unacked_after_ack=0,
     )
     for k, v in kw.items():
         setattr(r, k, v)
@@ -207,3 +210,20 @@ def test_the_section_states_medians_and_maxima_per_acknowledgement_mode() -> Non
 def test_make_bench_runs_the_section() -> None:
     assert "alarms" in run.SECTIONS
     assert run.FULL.alarm_rounds == 10 and run.QUICK.alarm_rounds == 4
+
+
+def test_the_summary_goal_needs_flood_and_a_cleared_count_in_every_round() -> None:
+    summary = "alarm summary: Flood at the activation, Unacknowledged 0 after acknowledge-all"
+    # hand-made rounds 1..4: rates 18, 36, 54, 72 (each round's 18 plus the earlier ones in 600 s)
+    assert _by_name(_result())[summary] == (
+        "Flood 4 / 4, Unacknowledged 0 in 4 / 4, RatePer10Min 18..72",
+        True,
+    )
+    late = _result()
+    late.rounds[2].summary_unacked_after_ack = 3
+    late.rounds[3].summary_flood = False
+    assert _by_name(late)[summary] == ("Flood 3 / 4, Unacknowledged 0 in 3 / 4, RatePer10Min 18..72", False)
+    unread = _result()
+    unread.rounds[0].summary_flood = None  # never read: not counted as a flood
+    assert _by_name(unread)[summary][1] is False
+    assert summary_goal([]).met is None

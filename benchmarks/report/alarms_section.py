@@ -89,6 +89,8 @@ def goals(res: AlarmsResult) -> list[Goal]:
         )
     )
 
+    out.append(summary_goal(rounds))
+
     def within(name: str, values: list[float], what: str) -> Goal:
         worst = _worst(values)
         scaled = seconds_at_reference(worst, res.speed_ms)
@@ -118,6 +120,25 @@ def goals(res: AlarmsResult) -> list[Goal]:
                 )
             )
     return out
+
+
+def summary_goal(rounds: Sequence[Round]) -> Goal:
+    """The PLC's alarm summary through the flood: ``Flood`` true once a round's activations are
+    counted (each round raises more than 10 in one scan) and ``Unacknowledged`` 0 after its
+    acknowledge-all."""
+    read = [r for r in rounds if r.summary_flood is not None]
+    flooded = sum(bool(r.summary_flood) for r in read)
+    cleared = sum(r.summary_unacked_after_ack == 0 for r in read)
+    rates = [r.summary_rate for r in read]
+    span = f", RatePer10Min {min(rates)}..{max(rates)}" if rates else ""
+    return Goal(
+        "alarm summary: Flood at the activation, Unacknowledged 0 after acknowledge-all",
+        f"{len(rounds)} / {len(rounds)} rounds each",
+        f"Flood {flooded} / {len(rounds)}, Unacknowledged 0 in {cleared} / {len(rounds)}{span}",
+        (flooded == cleared == len(rounds)) if rounds else None,
+        "PLC.AlarmSummary.* read by the acknowledging client; the rate counts the earlier rounds' "
+        "activations still in the 600 s model-time window",
+    )
 
 
 def _summary_rows(rounds: Sequence[Round], mode: str) -> list[list[str]]:

@@ -26,10 +26,12 @@ RUNTIME_OWNED_TAGS = (
     paths.plc.heartbeat,
     paths.plc.supervisor_timeout,
     *paths.link_status_paths(paths.plc.plant_link).values(),
+    *paths.alarm_summary_paths("plc").values(),
 )
 """PLC variables the runtime publishes, not :func:`status_values` (plus ``PLC.LIC*.Block`` and
-``PLC.Identity.*``, constant): its scan timing, the supervisor's heartbeat and timeout, and its
-field link's status."""
+``PLC.Identity.*``, constant): its scan timing, the supervisor's heartbeat and timeout, its
+field link's status, and the alarm summary (published after condition events and when the rate
+window moves on: :class:`tanklab_io.conditions.summary.SummaryPublisher`)."""
 
 
 def status_values(status: PlcStatus) -> dict[str, Any]:

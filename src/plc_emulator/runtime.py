@@ -297,6 +297,7 @@ async def run_plc(
             out = program.scan(ScanInputs(t_model, readings.levels_m, readings.good, healthy))
             if program.alarms.events:  # before any await: the core's order reaches the nodes
                 await server.publish_alarms(program.alarms.events)
+            await server.expire_alarm_rate()
             status = out.status
             assert status is not None  # scan() publishes by default
             # The scan's row is taken now: a supervisor write may land during the field I/O below.

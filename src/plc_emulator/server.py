@@ -19,7 +19,9 @@ kept). Role checks and the audit record of every call are the method adapter's
 
 The PLC's alarms are OPC UA conditions (:class:`tanklab_io.conditions.UaConditions`, installed
 at :meth:`PlcServer.start` from the program's alarm manager; docs/alarms.md section 7): the
-runtime publishes each scan's alarm events with :meth:`PlcServer.publish_alarms`, and a client's
+runtime publishes each scan's alarm events with :meth:`PlcServer.publish_alarms` (after each batch
+the alarm summary ``PLC.AlarmSummary.*`` follows, and each scan :meth:`PlcServer.expire_alarm_rate`
+republishes it when an activation leaves the rate window), and a client's
 Acknowledge, Confirm, AddComment, Enable, Disable or shelving call is answered by
 ``manager.call(call, program.t_s)``. Scans and calls are serialised by the one asyncio loop the
 scan and the server share: ``program.scan`` and ``manager.call`` are synchronous, so a call runs
@@ -51,6 +53,7 @@ from tanklab.enums import GainSource
 from tanklab.handlers import HandlerTable
 from tanklab.tags import HEARTBEAT_PATH, Role, Tag, plc_tags, tags_by_path
 from tanklab_io.conditions import ModelUtc, UaConditions
+from tanklab_io.conditions.summary import SummaryPublisher
 from tanklab_io.ua import CURRENT_USER, MethodHandler, Publisher, TankUser, WriteHandler
 from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
@@ -88,6 +91,9 @@ class PlcServer:
         self.tier: TierServer | None = None
         self.publisher: Publisher | None = None
         self.conditions: UaConditions | None = None
+        self.summary: SummaryPublisher | None = None
+        """``PLC.AlarmSummary.*``: republished after each batch of condition events and when an
+        activation leaves the rate window (:meth:`expire_alarm_rate`)."""
         self.to_utc = ModelUtc(speed)
         self.on_heartbeat: Callable[[], None] | None = None
         self.on_change: Callable[[], None] | None = None
@@ -128,6 +134,9 @@ class PlcServer:
             to_utc=self.to_utc,
             audit=self.tier.audit,
         )
+        self.summary = SummaryPublisher("plc", manager, self.publish, lambda: self.program.t_s)
+        self.conditions.after_publish = self.summary.publish
+        await self.summary.publish()
         await self.conditions.publish(manager.restart_events(self.program.t_s))
 
     def _alarm_call(self, call: ConditionCall) -> tuple[CallStatus, Sequence[ConditionEvent]]:
@@ -144,6 +153,12 @@ class PlcServer:
         assert self.conditions is not None
         self.to_utc.anchor(self.program.t_s)
         await self.conditions.publish(events)
+
+    async def expire_alarm_rate(self) -> None:
+        """Once per scan: republish the alarm summary if an activation left the 600 s rate
+        window by the last scan's model time (a comparison otherwise)."""
+        assert self.summary is not None
+        await self.summary.expire()
 
     async def stop(self) -> None:
         if self.tier is not None:

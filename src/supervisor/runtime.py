@@ -263,6 +263,7 @@ async def run_supervisor(
                 if events := alarms.feed(request.actions.status, link_up, t_model):
                     save()
                     await server.publish_alarms(events)
+                await server.expire_alarm_rate()
                 await server.publish_status(request.actions.status)
                 if trace_file is not None and core.result_scan == snap.scan:
                     trace_file.write(",".join(repr(x) for x in trace_row(snap.scan, snap.t_s, core)) + "\n")

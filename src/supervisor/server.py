@@ -34,6 +34,7 @@ from tanklab.enums import MpcStatus, SupervisorMode
 from tanklab.handlers import HandlerTable
 from tanklab.tags import Tag, supervisor_tags, tags_by_path
 from tanklab_io.conditions import ModelUtc, UaConditions
+from tanklab_io.conditions.summary import SummaryPublisher
 from tanklab_io.ua import Publisher, WriteHandler
 from tanklab_io.ua_security import ServerSecurity, TierServer, start_tier_server
 
@@ -63,6 +64,9 @@ class SupervisorServer:
         self.core = core
         self.alarms = alarms or SupervisorAlarms(site, adaptation=core.adapter is not None)
         self.conditions: UaConditions | None = None
+        self.summary: SummaryPublisher | None = None
+        """``Supervisor.AlarmSummary.*``, as the PLC's (after each batch of condition events and
+        when an activation leaves the rate window: :meth:`expire_alarm_rate`)."""
         self.to_utc = ModelUtc(speed)
         self.url = f"opc.tcp://{host}:{port}/tanklab/supervisor"
         self.tags = supervisor_tags(site)
@@ -97,6 +101,9 @@ class SupervisorServer:
             to_utc=self.to_utc,
             audit=self.tier.audit,
         )
+        self.summary = SummaryPublisher("supervisor", manager, self.publish, lambda: self.alarms.t_s)
+        self.conditions.after_publish = self.summary.publish
+        await self.summary.publish()
         # After a warm restart each restored retained condition is announced once, as the PLC's.
         await self.conditions.publish(manager.restart_events(self.alarms.t_s))
         await self.publish_status(self.core.status())
@@ -115,6 +122,12 @@ class SupervisorServer:
         assert self.conditions is not None
         self.to_utc.anchor(self.alarms.t_s)
         await self.conditions.publish(events)
+
+    async def expire_alarm_rate(self) -> None:
+        """After each feed: republish the alarm summary if an activation left the 600 s rate
+        window by the feed's model time (a comparison otherwise)."""
+        assert self.summary is not None
+        await self.summary.expire()
 
     async def stop(self) -> None:
         if self.tier is not None:

@@ -10,8 +10,10 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
+from tankctl.ops.alarm_summary import SUMMARY_TIERS, summary_json, summary_paths, unacknowledged_line
 from tanklab import paths
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SupervisorMode
+from tanklab.paths import Tier as TierName
 from tanklab.tags import plant_tags, plc_tags, supervisor_tags, tags_by_path
 
 if TYPE_CHECKING:
@@ -48,6 +50,7 @@ class Board:
         ]
         self.plc_paths += [plc.scan, plc.io_healthy, plc.supervisor_alive, plc.overruns]
         self.plc_paths += [p for p in ct if p.startswith(_ALARM_PREFIXES) and ct[p].kind == "variable"]
+        self.plc_paths += summary_paths("plc")
         self.links = {
             "plant": stack.link("plant", {p: pt[p] for p in self.plant_paths}, "board-plant"),
             "plc": stack.link("plc", {p: ct[p] for p in self.plc_paths}, "board-plc"),
@@ -56,6 +59,7 @@ class Board:
             st = tags_by_path(supervisor_tags(site))
             sup = paths.supervisor
             self.sup_paths = [sup.mode, sup.mpc_status, sup.mpc_solve_time, sup.cycle, sup.plc_connected]
+            self.sup_paths += summary_paths("supervisor")
             self.links["supervisor"] = stack.link(
                 "supervisor", {p: st[p] for p in self.sup_paths}, "board-supervisor"
             )
@@ -126,7 +130,15 @@ class Board:
         alarm_text = Text(
             "alarms: " + (", ".join(alarms) if alarms else "none"), style="bold red" if alarms else "green"
         )
-        lines: list[Any] = [levels, loops, status, alarm_text]
+        summaries: dict[TierName, dict[str, Any]] = {
+            tier: summary_json(tier, v) for tier in SUMMARY_TIERS if tier in self.links
+        }
+        unacked = any(s["unacknowledged"] for s in summaries.values())
+        flood = any(s["flood"] for s in summaries.values())
+        unacked_text = Text(
+            unacknowledged_line(summaries), style="bold red" if flood else "yellow" if unacked else "green"
+        )
+        lines: list[Any] = [levels, loops, status, alarm_text, unacked_text]
         for name, ok in self.reachable.items():
             if not ok:
                 lines.append(Text(f"{name} unreachable at {self.stack.tiers[name].url}", style="bold red"))

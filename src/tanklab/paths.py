@@ -43,6 +43,28 @@ IDENTITY_ITEMS = ("SiteName", "ConfigDigest", "Config")
 BALANCE_ITEMS = ("In", "Out", "Leaked", "Spilled", "Stored", "Error")
 """The plant's water-balance nodes (``Plant.Balance.<item>``, volumes in m^3)."""
 
+AlarmSummaryItem = Literal[
+    "Active",
+    "Unacknowledged",
+    "Shelved",
+    "Suppressed",
+    "Disabled",
+    "RatePer10Min",
+    "PeakRatePer10Min",
+    "Flood",
+]
+ALARM_SUMMARY_ITEMS: tuple[AlarmSummaryItem, ...] = (
+    "Active",
+    "Unacknowledged",
+    "Shelved",
+    "Suppressed",
+    "Disabled",
+    "RatePer10Min",
+    "PeakRatePer10Min",
+    "Flood",
+)
+"""A tier's alarm summary nodes (``<Tier>.AlarmSummary.<item>``: counts, ISA-18.2 rates, flood)."""
+
 BalanceItem = Literal["In", "Out", "Leaked", "Spilled", "Stored", "Error"]
 AlarmKind = Literal["H", "L", "HH"]
 
@@ -64,6 +86,14 @@ def link_status_paths(prefix: str) -> dict[str, str]:
 def identity_paths(tier: Tier) -> dict[str, str]:
     """Path of each :data:`IDENTITY_ITEMS` node of ``tier`` (``PLC.Identity.ConfigDigest``)."""
     return {item: f"{TIER_ROOTS[tier]}.Identity.{item}" for item in IDENTITY_ITEMS}
+
+
+@cache
+def alarm_summary_paths(tier: Tier) -> dict[AlarmSummaryItem, str]:
+    """Path of each :data:`ALARM_SUMMARY_ITEMS` node of ``tier`` (``PLC.AlarmSummary.Active``).
+
+    The returned mapping is shared (cached): do not change it."""
+    return {item: f"{TIER_ROOTS[tier]}.AlarmSummary.{item}" for item in ALARM_SUMMARY_ITEMS}
 
 
 def tier_root(tier: Tier) -> str:

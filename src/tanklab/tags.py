@@ -19,13 +19,16 @@ from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SensorFault, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
 from tanklab.paths import (
+    ALARM_SUMMARY_ITEMS,
     IDENTITY_ITEMS,
     LINK_STATUS_ITEMS,
     SOURCE_TIERS,
     TIER_ROOTS,
     AlarmKind,
+    AlarmSummaryItem,
     BalanceItem,
     Tier,
+    alarm_summary_paths,
     historian,
     identity_paths,
     link_status_paths,
@@ -47,6 +50,7 @@ from tanklab.tag_model import (
 )
 
 __all__ = [
+    "ALARM_SUMMARY_ITEMS",
     "APPLICATION_URIS",
     "ENGINEER_ONLY",
     "HEARTBEAT_PATH",
@@ -61,6 +65,7 @@ __all__ = [
     "Role",
     "Tag",
     "Tier",
+    "alarm_summary_paths",
     "all_tags",
     "historian_tags",
     "identity_paths",
@@ -139,6 +144,32 @@ def _identity(b: TagList, site: SiteConfig) -> None:
         "That canonical JSON itself: an operator command given no --config takes the site from it.",
         initial=canonical_json(site),
     )
+
+
+def _alarm_summary(b: TagList) -> None:
+    """The tier's alarm summary nodes (:mod:`tanklab.alarms.summary`; docs/alarms.md)."""
+    p = alarm_summary_paths(b.tier)
+    counts: dict[AlarmSummaryItem, str] = {
+        "Active": "Enabled conditions that are active (shelved and suppressed ones included).",
+        "Unacknowledged": "Enabled conditions not acknowledged.",
+        "Shelved": "Enabled conditions shelved (one-shot or timed).",
+        "Suppressed": "Enabled conditions suppressed (their loop out of service, MANUAL).",
+        "Disabled": "Disabled conditions (counted in no other figure).",
+    }
+    for item, text in counts.items():
+        b.var(p[item], DataType.UINT32, text)
+    b.var(
+        p["RatePer10Min"],
+        DataType.UINT32,
+        "ISA-18.2 alarm rate of this tier (one operator position): annunciated alarms (new activations "
+        "and new limits, neither shelved nor suppressed) in the last 600 s of model time.",
+    )
+    b.var(
+        p["PeakRatePer10Min"],
+        DataType.UINT32,
+        "The largest RatePer10Min since the tier started.",
+    )
+    b.var(p["Flood"], DataType.BOOLEAN, "Alarm flood: RatePer10Min > 10 (ISA-18.2, EEMUA 191).")
 
 
 def plant_tags(site: SiteConfig) -> list[Tag]:
@@ -478,6 +509,7 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         b.var(plc.pv_bad_alarm(lp.name), DataType.BOOLEAN, f"{lp.name}'s PV is bad (substitute output).")
     b.var(plc.io_fault, DataType.BOOLEAN, "The field link to the plant is lost.")
     b.var(plc.supervisor_lost, DataType.BOOLEAN, "The supervisor's heartbeat timed out.")
+    _alarm_summary(b)
     return b.tags
 
 
@@ -596,6 +628,7 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
         DataType.DOUBLE_ARRAY,
         f"Estimated input disturbances [m^3/s], one per disturbance state (pumps: {pumps}).",
     )
+    _alarm_summary(b)
     return b.tags
 
 

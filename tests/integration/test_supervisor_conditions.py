@@ -4,7 +4,9 @@ processes (issue 15, supervisor part).
 A client subscribed to the supervisor's Server object sees no PlcLinkLost event while the PLC
 runs; when the PLC process is killed it receives PlcLinkLost active (HIGH Severity, unacked,
 retained); when the PLC is restarted the condition returns to normal (still unacknowledged, so
-retained), and its EventId acknowledges it.
+retained), and its EventId acknowledges it. ``Supervisor.AlarmSummary`` counts the loss (one
+more active and unacknowledged, one more in the rate) and, after the acknowledge, agrees with a
+recount of the conditions' own state nodes.
 
 With the retentive memory on (``--retain-file``, as under ``tankctl up``): PlcLinkLost raised by
 the PLC's death and acknowledged survives a crash (SIGKILL) and restart of the supervisor: the
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from asyncua import Client, ua
@@ -26,6 +29,8 @@ from asyncua import Client, ua
 from helpers import secure, wait_until
 from tanklab import paths
 from tanklab.alarms import Priority, names
+from tanklab.alarms.definitions import supervisor_alarms
+from tanklab.config import load_site
 from tanklab.tags import NAMESPACE_URI
 from tanklab_testing.condition_events import Events, event_filter, refresh
 from tanklab_testing.procs import free_base_port
@@ -71,6 +76,18 @@ async def test_plc_link_lost_is_raised_when_the_plc_dies_and_clears_when_it_retu
         def states() -> list[bool]:
             return [e["ActiveState/Id"] for e in events.of(cid)]
 
+        summary_paths = paths.alarm_summary_paths("supervisor")
+        summary_nodes = [op.get_node(ua.NodeId(p, idx)) for p in summary_paths.values()]
+        figures: dict[str, Any] = {}
+
+        async def unacked_is(n: int) -> bool:
+            figures.update(zip(summary_paths, await op.read_values(summary_nodes), strict=True))
+            return bool(figures["Unacknowledged"] == n)
+
+        await unacked_is(-1)  # read them (no count is -1)
+        base = dict(figures)  # the supervisor's own alarms before the PLC dies
+        assert base["Disabled"] == 0 and base["Shelved"] == 0 and base["Flood"] is False
+
         await stack.kill("plc")
         await wait_until(lambda: True in states(), 60, what="the PlcLinkLost activation event")
         lost = next(e for e in events.of(cid) if e["ActiveState/Id"] is True)
@@ -78,6 +95,11 @@ async def test_plc_link_lost_is_raised_when_the_plc_dies_and_clears_when_it_retu
         assert lost["SourceName"] == paths.supervisor.plc_link.rsplit(".", 1)[-1]
         assert lost["Severity"] == int(Priority.HIGH)
         assert lost["Retain"] is True and lost["AckedState/Id"] is False
+        # Supervisor.AlarmSummary counts it: one more active, unacknowledged, in the rate.
+        want = base["Unacknowledged"] + 1
+        await wait_until(lambda: unacked_is(want), 20, what="Supervisor.AlarmSummary counting PlcLinkLost")
+        assert figures["Active"] == base["Active"] + 1
+        assert figures["RatePer10Min"] == base["RatePer10Min"] + 1 and figures["PeakRatePer10Min"] >= 1
 
         await stack.start("plc")
         await wait_until(lambda: states()[-1] is False, 60, what="PlcLinkLost back to normal")
@@ -90,6 +112,31 @@ async def test_plc_link_lost_is_raised_when_the_plc_dies_and_clears_when_it_retu
         assert await call(op, cid, ACK, event_id, comment) == "Good"
         await wait_until(lambda: events.of(cid)[-1]["Retain"] is False, 20, what="the acknowledged event")
         assert events.of(cid)[-1]["AckedState/Id"] is True
+        # Back in step with the PLC the supervisor's other alarms may change too (its MPC, its
+        # adaptation): the summary agrees with a recount of every condition's own state nodes,
+        # read in one Read, PlcLinkLost acknowledged among them.
+        defs = supervisor_alarms(load_site(stack.config))
+        fields = ("EnabledState.Id", "ActiveState.Id", "AckedState.Id")
+        state_nodes = [
+            op.get_node(ua.NodeId(f"{paths.condition('supervisor', d.name)}.{f}", idx))
+            for d in defs
+            for f in fields
+        ]
+
+        async def agrees() -> bool:
+            values = await op.read_values([*summary_nodes, *state_nodes])
+            summary = dict(zip(summary_paths, values[: len(summary_nodes)], strict=True))
+            rest = values[len(summary_nodes) :]
+            conds = {d.name: rest[3 * k : 3 * k + 3] for k, d in enumerate(defs)}
+            on = [v for v in conds.values() if v[0]]
+            return (
+                conds[names.PLC_LINK_LOST][2] is True
+                and summary["Active"] == sum(bool(v[1]) for v in on)
+                and summary["Unacknowledged"] == sum(not v[2] for v in on)
+                and summary["Disabled"] == len(defs) - len(on)
+            )
+
+        await wait_until(agrees, 20, what="Supervisor.AlarmSummary agreeing with its conditions")
         await sub.delete()
 
 

@@ -27,7 +27,7 @@ from plc_emulator.publish import RUNTIME_OWNED_TAGS, status_values
 from tanklab.config import SiteConfig, site_from_mapping
 from tanklab.enums import GainSource, LoopMode
 from tanklab.gains import LoopGains
-from tanklab.tags import identity_paths, plc_tags
+from tanklab.tags import ALARM_SUMMARY_ITEMS, identity_paths, plc_tags
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
@@ -134,6 +134,7 @@ def test_values_publish_exactly_the_program_owned_plc_tags(path: Path) -> None:
         "PLC.Status.PlantLink.Connects",
         "PLC.Status.PlantLink.LastError",
         "PLC.Status.PlantLink.RetryDelay",
+        *(f"PLC.AlarmSummary.{item}" for item in ALARM_SUMMARY_ITEMS),
     }
     # before the first scan too (the server's initial publish)
     assert set(status_values(program.status())) == expected

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from asyncua import ua
+from rich.console import Console
 from typer.testing import CliRunner
 
 from helpers import ROOT
 from tankctl.cli import app
+from tankctl.ops.alarm_summary import summary_json, summary_line, summary_paths, unacknowledged_line
 from tankctl.ops.alarms import (
     LIMIT_FIELD,
     STATE_FIELDS,
@@ -24,6 +27,7 @@ from tankctl.ops.alarms import (
     render_rows,
 )
 from tankctl.ops.errors import UsageError
+from tankctl.up_board import Board
 from tanklab.alarms.definitions import plc_alarms, supervisor_alarms
 from tanklab.alarms.model import ConditionKind
 from tanklab.config import load_site
@@ -228,3 +232,63 @@ def test_an_unknown_alarm_names_both_tiers_before_connecting() -> None:
     r = CliRunner().invoke(app, ["unshelve", "Nope", "--config", config, "--base-port", "1"])
     assert r.exit_code == 2
     assert "; the supervisor has MpcFailing, AdaptationUnhealthy, PlcLinkLost)" in r.output
+
+
+# ---- the alarm summary of status and the board --------------------------------------------
+
+
+def _summary_values(tier: str, *values: int | bool) -> dict[str, int | bool]:
+    root = "PLC" if tier == "plc" else "Supervisor"
+    items = ("Active", "Unacknowledged", "Shelved", "Suppressed", "Disabled", "RatePer10Min")
+    items += ("PeakRatePer10Min", "Flood")
+    return {f"{root}.AlarmSummary.{i}": v for i, v in zip(items, values, strict=True)}
+
+
+def test_the_summary_json_and_its_line() -> None:
+    doc = summary_json("plc", _summary_values("plc", 2, 1, 0, 0, 0, 3, 4, False))
+    assert doc == {
+        "active": 2,
+        "unacknowledged": 1,
+        "shelved": 0,
+        "suppressed": 0,
+        "disabled": 0,
+        "rate_per_10min": 3,
+        "peak_rate_per_10min": 4,
+        "flood": False,
+    }
+    assert (
+        summary_line("plc", doc)
+        == "PLC alarms: 2 active, 1 unacknowledged, 0 shelved, rate 3/10 min (peak 4)"
+    )
+    flood = summary_json("supervisor", _summary_values("supervisor", 12, 12, 1, 2, 1, 11, 11, True))
+    assert summary_line("supervisor", flood) == (
+        "supervisor alarms: 12 active, 12 unacknowledged, 1 shelved, 2 suppressed, 1 disabled, "
+        "rate 11/10 min (peak 11), FLOOD"
+    )
+    assert summary_line("plc", summary_json("plc", {})) == "PLC alarms: no summary"
+    assert summary_paths("plc") == list(_summary_values("plc", 0, 0, 0, 0, 0, 0, 0, False))
+
+
+def test_the_boards_unacknowledged_line() -> None:
+    assert (
+        unacknowledged_line({"plc": {"unacknowledged": 1, "flood": False}}) == "unacknowledged alarms: PLC 1"
+    )
+    both = {
+        "plc": {"unacknowledged": 11, "flood": True},
+        "supervisor": {"unacknowledged": None, "flood": None},
+    }
+    assert unacknowledged_line(both) == "unacknowledged alarms: PLC 11 FLOOD, supervisor ?"
+
+
+def test_the_up_board_renders_the_unacknowledged_line_from_the_summary_nodes() -> None:
+    tier = SimpleNamespace(log_path="x.log", url="opc.tcp://127.0.0.1:1/x")
+    tiers = {"plant": tier, "plc": tier, "supervisor": tier}
+    local = SimpleNamespace(site=SITE, clock="realtime", speed=1.0, tiers=tiers, link=lambda *a: None)
+    board = Board(local)  # type: ignore[arg-type]
+    assert "PLC.AlarmSummary.Unacknowledged" in board.plc_paths  # read with the board's one Read
+    assert "Supervisor.AlarmSummary.Flood" in board.sup_paths
+    board.values = _summary_values("plc", 3, 2, 0, 0, 0, 11, 11, True)
+    board.values |= _summary_values("supervisor", 0, 0, 0, 0, 0, 0, 0, False)
+    console = Console(width=120, record=True)
+    console.print(board.render([]))
+    assert "unacknowledged alarms: PLC 2 FLOOD, supervisor 0" in console.export_text().splitlines()

@@ -493,9 +493,24 @@ def test_status_json_has_the_documented_shape(stack: Stack) -> None:
     assert set(plc["interlocks"]) == {"T1HH", "T2HH"}
     assert isinstance(plc["active_alarms"], list) and isinstance(plc["tripped"], list)
     assert sup["mode"] == "ADVISORY" and sup["mpc"]["horizon"] == 10
+    summary_keys = {"active", "unacknowledged", "shelved", "suppressed", "disabled"}
+    summary_keys |= {"rate_per_10min", "peak_rate_per_10min", "flood"}
+    for tier in (plc, sup):
+        s = tier["alarm_summary"]
+        assert set(s) == summary_keys
+        assert all(type(s[k]) is int for k in summary_keys - {"flood"}) and s["flood"] is False
+        assert s["disabled"] == 0 and s["shelved"] == 0  # nobody disabled or shelved one
     human = cli("status", *base(stack))
     assert human.code == 0
-    for word in ("three_tank_energies_sim", "T1", "T3", "LIC1", "LIC2", "alarms:", "model time"):
+    for word in (
+        "three_tank_energies_sim",
+        "T1",
+        "T3",
+        "LIC1",
+        "PLC alarms:",
+        "supervisor alarms:",
+        "model time",
+    ):
         assert word in human.stdout
 
 

@@ -11,6 +11,7 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
+from tankctl.ops.alarm_summary import summary_json, summary_line
 from tankctl.ops.display import num, percent_of, plain, sci, secs, show, stdout_console
 from tankctl.ops.errors import UnreachableError
 from tankctl.ops.options import JsonOpt, StackOptions, stack_command
@@ -113,6 +114,7 @@ def _plc_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
         "active_alarms": [k for k, on in alarms.items() if on],
         "interlocks": interlocks,
         "tripped": [k for k, on in interlocks.items() if on],
+        "alarm_summary": summary_json("plc", v),
     }
 
 
@@ -130,6 +132,7 @@ def _supervisor_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
             "failures": v[sup.mpc_failures],
             "horizon": v[sup.mpc_horizon],
         },
+        "alarm_summary": summary_json("supervisor", v),
     }
 
 
@@ -239,6 +242,11 @@ def render_status(stack: Stack, doc: dict[str, Any]) -> Group:
         parts.append(Text(f"alarms: {alarms}; interlocks tripped: {trips}"))
     elif site.plc is not None:
         parts.append(Text("alarms: unknown (PLC unreachable)"))
+    for tier in ("plc", "supervisor"):
+        d = doc[tier]
+        if d is not None and d["reachable"]:
+            s = d["alarm_summary"]
+            parts.append(Text(summary_line(tier, s), style="bold red" if s["flood"] else ""))
     return Group(*parts)
 
 

@@ -24,16 +24,22 @@ value, and the input's quality) and, per alarm, in order:
 4. **Suppression**: SuppressedState while the loop named by ``suppress_when_manual`` is in MANUAL.
 5. **Shelving expiry** (``tick``).
 
-Alarm rate (ISA-18.2): the annunciated activations (new activations and new limits, not shelved,
-suppressed or disabled) in the last ``rate_window_s`` (600 s) of model time; a flood is more than
-``flood_threshold`` (10) of them.
+Alarm rate (ISA-18.2, per operator position: one position per tier): the annunciated activations
+(new activations and new limits, not shelved, suppressed or disabled; an Enable that finds the
+process off normal is one too) at model times ``t_k`` [s]; at model time ``t`` [s]
+
+    rate(t) = #{k : t - W < t_k <= t},   W = ``rate_window_s`` (600 s),
+    peak(t) = max(rate(t_k) for t_k <= t),   flood(t) = rate(t) > ``flood_threshold`` (10),
+
+so the activation at ``t_k`` leaves the window at exactly ``t_k + W`` (:meth:`AlarmManager.
+rate_expiring`), and the counts are those of :func:`summarize`.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -66,6 +72,7 @@ __all__ = [
     "AlarmInput",
     "AlarmManager",
     "classify_level",
+    "summarize",
 ]
 
 DEFAULT_MAX_SHELVING_TIME_S = 8 * 3600.0
@@ -78,6 +85,34 @@ FLOOD_THRESHOLD = 10
 _HH, _H, _L, _LL = LIMIT_ORDER
 _HIGH_SIDE = (_HH, _H)
 _LOW_SIDE = (_L, _LL)
+
+
+def summarize(
+    conditions: Iterable[Condition], rate_per_10min: int, peak_rate_per_10min: int, flood_threshold: int
+) -> AlarmSummary:
+    """The summary of ``conditions`` (pure): per enabled condition whether it is active, not
+    acknowledged, shelved, suppressed, the count of disabled ones, and the rate figures as
+    given (``flood``: ``rate_per_10min > flood_threshold``)."""
+    active = unacked = shelved = suppressed = disabled = 0
+    unshelved = ShelvingState.UNSHELVED
+    for c in conditions:
+        if not c.enabled:
+            disabled += 1
+            continue
+        active += c.active
+        unacked += not c.acked
+        shelved += c.shelving is not unshelved
+        suppressed += c.suppressed
+    return AlarmSummary(
+        active=active,
+        unacked=unacked,
+        shelved=shelved,
+        suppressed=suppressed,
+        disabled=disabled,
+        rate_per_10min=rate_per_10min,
+        peak_rate_per_10min=max(peak_rate_per_10min, rate_per_10min),
+        flood=rate_per_10min > flood_threshold,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,6 +242,8 @@ class AlarmManager:
         self._tracks = {d.name: _Track() for d in definitions}
         self._rows = [(d, self._conditions[d.name], self._tracks[d.name], *_quiet(d)) for d in definitions]
         self._annunciated: deque[float] = deque()
+        self._peak_rate = 0
+        """The largest count of annunciated activations in one window so far."""
         self._booleans: dict[str, bool] | None = None
         """:meth:`booleans` as last built (None: to be rebuilt; most scans change none)."""
         self.t_s = 0.0
@@ -307,6 +344,7 @@ class AlarmManager:
         q.append(t_s)
         while q[0] <= t_s - self.rate_window_s:
             q.popleft()
+        self._peak_rate = max(self._peak_rate, sum(1 for t in q if t <= t_s))
 
     def _filter(self, d: AlarmDefinition, tr: _Track, x: float | bool, t_s: float) -> ProcessState:
         """Steps 1-3 of the module docstring: the new ActiveState of ``d`` for input ``x``."""
@@ -362,7 +400,11 @@ class AlarmManager:
         cond = self._conditions.get(call.condition)
         if cond is None:
             return CallStatus.UNKNOWN_CONDITION, []
-        return cond.call(call, t_s)
+        before = cond.activations
+        status, events = cond.call(call, t_s)
+        if cond.activations != before and cond.annunciating:  # Enable found it off normal
+            self._annunciate(t_s)
+        return status, events
 
     def restart_events(self, t_s: float) -> list[ConditionEvent]:
         """After a warm restart (:meth:`from_retain`), one event per retained condition at model
@@ -392,20 +434,25 @@ class AlarmManager:
         return tuple(out)
 
     def summary(self, t_s: float) -> AlarmSummary:
-        """Counts and the alarm rate in the ``rate_window_s`` ending at ``t_s`` [s]."""
+        """Counts and the alarm rate in the ``rate_window_s`` ending at ``t_s`` [s]
+        (:func:`summarize` of the conditions; activations that left the window are forgotten)."""
         q = self._annunciated
         while q and q[0] <= t_s - self.rate_window_s:
             q.popleft()
-        rate = sum(1 for t in q if t <= t_s)
-        cs = [c for c in self._conditions.values() if c.enabled]
-        return AlarmSummary(
-            active=sum(c.active for c in cs),
-            unacked=sum(not c.acked for c in cs),
-            shelved=sum(c.shelving is not ShelvingState.UNSHELVED for c in cs),
-            suppressed=sum(c.suppressed for c in cs),
-            rate_per_10min=rate,
-            flood=rate > self.flood_threshold,
+        return summarize(
+            self._conditions.values(),
+            sum(1 for t in q if t <= t_s),
+            self._peak_rate,
+            self.flood_threshold,
         )
+
+    def rate_expiring(self) -> float | None:
+        """The model time [s] at which the oldest activation still counted in the rate leaves
+        the window (``t_k + rate_window_s``: from that instant on it is not counted), or None
+        when none is counted. A tier republishes its summary when its model time reaches it
+        (the summary after that forgets it, and this moves on to the next one)."""
+        q = self._annunciated
+        return q[0] + self.rate_window_s if q else None
 
     def booleans(self) -> dict[str, bool]:
         """The ``PLC.Alarms.*`` booleans: each follows its alarm's ActiveState (after deadband,

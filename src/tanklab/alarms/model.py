@@ -221,20 +221,29 @@ class ConditionCall:
 
 @dataclass(frozen=True, slots=True)
 class AlarmSummary:
-    """The tier's alarm summary node values and ISA-18.2 rate figures.
+    """A tier's alarm summary node values and ISA-18.2 rate figures (one operator position per
+    tier: the rate is the tier's own).
 
     Attributes
     ----------
-    active, unacked, shelved, suppressed : condition counts.
-    rate_per_10min : annunciated alarms (activations not shelved or suppressed) in the last
-        10 min of model time.
-    flood : whether ``rate_per_10min`` exceeds the flood threshold (ISA-18.2: > 10 per 10 min
-        per operator position).
+    active, unacked, shelved, suppressed : counts of the *enabled* conditions that are active,
+        not acknowledged, shelved (one-shot or timed), suppressed (e.g. their loop in MANUAL).
+    disabled : count of the disabled conditions (not in the other counts: Part 9 says a disabled
+        condition reports nothing).
+    rate_per_10min : annunciated alarms (new activations and new limits of enabled conditions
+        that were neither shelved nor suppressed) in the rate window ``(t - 600 s, t]`` of model
+        time.
+    peak_rate_per_10min : the largest ``rate_per_10min`` since the tier started (it can only
+        rise at an activation, so it is the largest count at an activation instant).
+    flood : whether ``rate_per_10min`` exceeds the flood threshold (ISA-18.2 / EEMUA 191: more
+        than 10 per 10 min per operator position).
     """
 
     active: int
     unacked: int
     shelved: int
     suppressed: int
+    disabled: int
     rate_per_10min: int
+    peak_rate_per_10min: int
     flood: bool

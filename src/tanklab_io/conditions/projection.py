@@ -26,7 +26,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import Any, ClassVar
 
@@ -222,6 +222,10 @@ class UaConditions:
         self._latest: dict[str, ConditionEvent] = {}
         self._publishing = asyncio.Lock()
         self.published = 0
+        self.after_publish: Callable[[], Awaitable[None]] | None = None
+        """Awaited after each batch of events is in the nodes and raised, still in the batch's
+        turn (the tier republishes its alarm summary: :class:`~tanklab_io.conditions.summary.
+        SummaryPublisher`); an exception it raises is logged, never the caller's."""
 
     @classmethod
     async def install_manager(
@@ -332,6 +336,11 @@ class UaConditions:
             return
         async with self._publishing:
             await self._publish(events)
+            if self.after_publish is not None:
+                try:
+                    await self.after_publish()
+                except Exception:  # the events are out: a summary failure must not hide that
+                    log.exception("after-publish hook failed")
 
     async def _publish(self, events: Sequence[ConditionEvent]) -> None:
         for ev in events:
