@@ -51,6 +51,7 @@ from typing import Any
 from asyncua import Server, ua
 
 from historian.store.base import EventCursor, HistoryStore
+from historian.ua_encode import history_data_extension_object
 from tanklab.history.aggregates import AGGREGATES, aggregate, interpolated_value
 from tanklab.history.intervals import intervals
 from tanklab.history.model import EventRecord, Sample, Value
@@ -138,7 +139,9 @@ def _result(status: int, data: Any = None, cp: bytes | None = None) -> ua.Histor
     return r
 
 
-def _history_data(samples: list[Sample]) -> ua.HistoryData:
+def _history_data(samples: list[Sample], binary: bool = False) -> ua.HistoryData | ua.ExtensionObject:
+    if binary:
+        return history_data_extension_object(samples)
     d = ua.HistoryData()
     d.DataValues = [_datavalue(s) for s in samples]
     return d
@@ -223,6 +226,9 @@ class HistoryReadService:
     config: AggregateConfig = field(default_factory=AggregateConfig)
     event_subtypes: Callable[[str], Collection[str]] | None = None
     stepped_tags: frozenset[str] = frozenset()
+    binary: bool = False
+    """Return HistoryData pre-encoded (:mod:`historian.ua_encode`): what a server sends; the
+    objects (``False``) are for callers that read the results in Python."""
     _cps: OrderedDict[bytes, _RawState | _ListState | _EventState] = field(default_factory=OrderedDict)
 
     # --- entry points -------------------------------------------------------------------
@@ -336,11 +342,11 @@ class HistoryReadService:
         more = got.cursor is not None and (st.total is None or st.returned < st.total)
         if more:
             st.after_us = got.cursor
-            return _result(GOOD, _history_data(out), self._keep(st))
+            return _result(GOOD, _history_data(out, self.binary), self._keep(st))
         if plan.end_bound and plan.start_us != plan.end_us:
             b = self._bound(st.tag, plan.end_us, before=plan.reverse)
             out.append(b or Sample(plan.end_us, None, BAD_BOUND_NOT_FOUND))
-        return _result(GOOD if out else GOOD_NO_DATA, _history_data(out))
+        return _result(GOOD if out else GOOD_NO_DATA, _history_data(out, self.binary))
 
     def _bound(self, tag: str, t_us: int, *, before: bool) -> Sample | None:
         b = self.store.bounds(tag, t_us)
@@ -419,7 +425,7 @@ class HistoryReadService:
     def _list_page(self, st: _ListState) -> ua.HistoryReadResult:
         now, st.rest = st.rest[: self.max_values], st.rest[self.max_values :]
         cp = self._keep(st) if st.rest else None
-        return _result(GOOD if now else GOOD_NO_DATA, _history_data(now), cp)
+        return _result(GOOD if now else GOOD_NO_DATA, _history_data(now, self.binary), cp)
 
     # --- events -----------------------------------------------------------------------------
 
@@ -604,9 +610,11 @@ def install_history_read(
     in ``executor``: pass the single worker thread that owns the store, so that reads and the
     collector's writes never use its connection at once (default: a private one-thread pool).
     ``options`` go to :class:`HistoryReadService` (``max_values``, ``config``...); event types'
-    subtypes come from the server's address space unless ``event_subtypes`` is given.
+    subtypes come from the server's address space unless ``event_subtypes`` is given, and the
+    HistoryData is pre-encoded in the worker thread (``binary``) unless ``binary=False``.
     """
     options.setdefault("event_subtypes", _aspace_subtypes(server))
+    options.setdefault("binary", True)
     service = HistoryReadService(store, tag_for_nodeid, **options)
     pool = executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="history-read")
     manager = server.iserver.history_manager
