@@ -73,6 +73,7 @@ __all__ = [
     "AGGREGATE_NODE_IDS",
     "HistoryReadService",
     "install_history_read",
+    "site_source_mapper",
     "site_tag_mapper",
 ]
 
@@ -181,6 +182,7 @@ class _EventState:
     min_severity: int
     source: str | None
     select: list[list[str]]
+    page: int | None
     returned: int = 0
     after: EventCursor | None = None
 
@@ -189,6 +191,18 @@ class _EventState:
 class _EventFilter:
     types: frozenset[str] | None = None
     min_severity: int = 0
+
+
+def site_source_mapper(namespace_index: int) -> TagMapper:
+    """NodeId -> SourceName for event reads: any string NodeId in the site namespace
+    (``ns=<urn:tanklab>;s=PLC.T1`` reads the events of ``PLC.T1`` and ``PLC.T1.*``)."""
+
+    def source_for(node: ua.NodeId) -> str | None:
+        if node.NamespaceIndex != namespace_index or not isinstance(node.Identifier, str):
+            return None
+        return node.Identifier
+
+    return source_for
 
 
 def site_tag_mapper(store: HistoryStore, namespace_index: int) -> TagMapper:
@@ -226,6 +240,9 @@ class HistoryReadService:
     config: AggregateConfig = field(default_factory=AggregateConfig)
     event_subtypes: Callable[[str], Collection[str]] | None = None
     stepped_tags: frozenset[str] = frozenset()
+    source_for_nodeid: TagMapper | None = None
+    """NodeId of an event notifier -> the SourceName it stands for (its events and those below
+    it); default :attr:`tag_for_nodeid`. The Server object always reads every event."""
     binary: bool = False
     """Return HistoryData pre-encoded (:mod:`historian.ua_encode`): what a server sends; the
     objects (``False``) are for callers that read the results in Python."""
@@ -433,17 +450,22 @@ class HistoryReadService:
         if node == ua.NodeId(ua.ObjectIds.Server):
             source = None
         else:
-            source = self._tag(node)
+            mapper = self.source_for_nodeid or self.tag_for_nodeid
+            source = mapper(node)
+            if source is None:
+                raise _ReadError(BAD_NODE_ID_UNKNOWN, "no event history for this node")
         start, end = _us(d.StartTime), _us(d.EndTime)
         plan = plan_raw(start, end, int(d.NumValuesPerNode), False)
         flt = self._where(d.Filter.WhereClause)
         select = [[q.Name for q in op.BrowsePath] for op in d.Filter.SelectClauses]
         total = plan.limit if start is None or end is None else None
-        st = _EventState(node, plan.start_us, plan.end_us, total, flt.types, flt.min_severity, source, select)
-        return self._event_page(st, page_limit=plan.limit)
+        st = _EventState(
+            node, plan.start_us, plan.end_us, total, flt.types, flt.min_severity, source, select, plan.limit
+        )
+        return self._event_page(st)
 
-    def _event_page(self, st: _EventState, page_limit: int | None = None) -> ua.HistoryReadResult:
-        limit = self.max_values if page_limit is None else min(page_limit, self.max_values)
+    def _event_page(self, st: _EventState) -> ua.HistoryReadResult:
+        limit = self.max_values if st.page is None else min(st.page, self.max_values)
         if st.total is not None:
             limit = min(limit, st.total - st.returned)
         events: list[EventRecord] = []
