@@ -13,9 +13,10 @@ through real processes), ``robustness``, ``security``, ``cli`` (operator command
 and the CLI's import cost), ``restarts`` (each tier SIGKILLed 20 times under ``tankctl up`` at
 speed 1: settings lost, level deviation, restart time, processes left), ``historian-store`` (the
 historian's SQLite and PostgreSQL stores: ingest per core, a day read back in pages, bytes per
-value; ~2 min), ``alarms`` (issue 15's alarm flood: the most conditions a site raises in one
-scan, acknowledged by one client, through real plant and PLC processes at a 1 s scan: overruns,
-scan durations, events/s). Progress goes to stderr;
+value; ~2 min), ``historian-read`` (a day of one tag at 1 s read through HistoryRead from a
+real asyncua server, raw and as a 60 s Average; ~1 min), ``alarms`` (issue 15's alarm flood:
+the most conditions a site raises in one scan, acknowledged by one client, through real plant
+and PLC processes at a 1 s scan: overruns, scan durations, events/s). Progress goes to stderr;
 the document is written at the end. ``--only`` writes a document with those sections alone:
 give it an ``--output`` to keep docs/benchmarks.md whole.
 """
@@ -38,6 +39,7 @@ from benchmarks import (
     alarms,
     cli,
     cosim,
+    histread,
     histstore,
     mpc,
     report,
@@ -51,7 +53,18 @@ from benchmarks.common import ROOT, machine, speed_reference, versions
 from benchmarks.report import alarms_section
 from tanklab_io.threads import limit_blas_threads
 
-SECTIONS = ("mpc", "cosim", "stack", "robustness", "security", "cli", "restarts", "historian-store", "alarms")
+SECTIONS = (
+    "mpc",
+    "cosim",
+    "stack",
+    "robustness",
+    "security",
+    "cli",
+    "restarts",
+    "historian-store",
+    "historian-read",
+    "alarms",
+)
 
 
 @dataclass(frozen=True)
@@ -252,6 +265,15 @@ def main(argv: list[str] | None = None) -> int:
         rep.errors += [f"historian-store: {e}" for e in result.errors]
 
     section("historian-store", run_histstore)
+
+    def run_histread() -> None:
+        _log("historian reads through HistoryRead (a day of one tag, raw and Average 60 s):")
+        result = histread.run(_log)
+        rep.extra.append(histread.markdown(result))
+        rep.extra_goals += histread.goals(result)
+        rep.errors += [f"historian-read: {e}" for e in result.errors]
+
+    section("historian-read", run_histread)
 
     def run_alarms() -> None:
         _log("alarm flood (conditions raised in one scan, one client acknowledging all, 1 s scan):")

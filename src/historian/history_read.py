@@ -51,6 +51,7 @@ from typing import Any
 from asyncua import Server, ua
 
 from historian.store.base import EventCursor, HistoryStore
+from historian.ua_encode import history_data_extension_object
 from tanklab.history.aggregates import AGGREGATES, aggregate, interpolated_value
 from tanklab.history.intervals import intervals
 from tanklab.history.model import EventRecord, Sample, Value
@@ -72,6 +73,7 @@ __all__ = [
     "AGGREGATE_NODE_IDS",
     "HistoryReadService",
     "install_history_read",
+    "site_source_mapper",
     "site_tag_mapper",
 ]
 
@@ -138,7 +140,9 @@ def _result(status: int, data: Any = None, cp: bytes | None = None) -> ua.Histor
     return r
 
 
-def _history_data(samples: list[Sample]) -> ua.HistoryData:
+def _history_data(samples: list[Sample], binary: bool = False) -> ua.HistoryData | ua.ExtensionObject:
+    if binary:
+        return history_data_extension_object(samples)
     d = ua.HistoryData()
     d.DataValues = [_datavalue(s) for s in samples]
     return d
@@ -178,6 +182,7 @@ class _EventState:
     min_severity: int
     source: str | None
     select: list[list[str]]
+    page: int | None
     returned: int = 0
     after: EventCursor | None = None
 
@@ -186,6 +191,18 @@ class _EventState:
 class _EventFilter:
     types: frozenset[str] | None = None
     min_severity: int = 0
+
+
+def site_source_mapper(namespace_index: int) -> TagMapper:
+    """NodeId -> SourceName for event reads: any string NodeId in the site namespace
+    (``ns=<urn:tanklab>;s=PLC.T1`` reads the events of ``PLC.T1`` and ``PLC.T1.*``)."""
+
+    def source_for(node: ua.NodeId) -> str | None:
+        if node.NamespaceIndex != namespace_index or not isinstance(node.Identifier, str):
+            return None
+        return node.Identifier
+
+    return source_for
 
 
 def site_tag_mapper(store: HistoryStore, namespace_index: int) -> TagMapper:
@@ -223,6 +240,12 @@ class HistoryReadService:
     config: AggregateConfig = field(default_factory=AggregateConfig)
     event_subtypes: Callable[[str], Collection[str]] | None = None
     stepped_tags: frozenset[str] = frozenset()
+    source_for_nodeid: TagMapper | None = None
+    """NodeId of an event notifier -> the SourceName it stands for (its events and those below
+    it); default :attr:`tag_for_nodeid`. The Server object always reads every event."""
+    binary: bool = False
+    """Return HistoryData pre-encoded (:mod:`historian.ua_encode`): what a server sends; the
+    objects (``False``) are for callers that read the results in Python."""
     _cps: OrderedDict[bytes, _RawState | _ListState | _EventState] = field(default_factory=OrderedDict)
 
     # --- entry points -------------------------------------------------------------------
@@ -336,11 +359,11 @@ class HistoryReadService:
         more = got.cursor is not None and (st.total is None or st.returned < st.total)
         if more:
             st.after_us = got.cursor
-            return _result(GOOD, _history_data(out), self._keep(st))
+            return _result(GOOD, _history_data(out, self.binary), self._keep(st))
         if plan.end_bound and plan.start_us != plan.end_us:
             b = self._bound(st.tag, plan.end_us, before=plan.reverse)
             out.append(b or Sample(plan.end_us, None, BAD_BOUND_NOT_FOUND))
-        return _result(GOOD if out else GOOD_NO_DATA, _history_data(out))
+        return _result(GOOD if out else GOOD_NO_DATA, _history_data(out, self.binary))
 
     def _bound(self, tag: str, t_us: int, *, before: bool) -> Sample | None:
         b = self.store.bounds(tag, t_us)
@@ -419,7 +442,7 @@ class HistoryReadService:
     def _list_page(self, st: _ListState) -> ua.HistoryReadResult:
         now, st.rest = st.rest[: self.max_values], st.rest[self.max_values :]
         cp = self._keep(st) if st.rest else None
-        return _result(GOOD if now else GOOD_NO_DATA, _history_data(now), cp)
+        return _result(GOOD if now else GOOD_NO_DATA, _history_data(now, self.binary), cp)
 
     # --- events -----------------------------------------------------------------------------
 
@@ -427,17 +450,22 @@ class HistoryReadService:
         if node == ua.NodeId(ua.ObjectIds.Server):
             source = None
         else:
-            source = self._tag(node)
+            mapper = self.source_for_nodeid or self.tag_for_nodeid
+            source = mapper(node)
+            if source is None:
+                raise _ReadError(BAD_NODE_ID_UNKNOWN, "no event history for this node")
         start, end = _us(d.StartTime), _us(d.EndTime)
         plan = plan_raw(start, end, int(d.NumValuesPerNode), False)
         flt = self._where(d.Filter.WhereClause)
         select = [[q.Name for q in op.BrowsePath] for op in d.Filter.SelectClauses]
         total = plan.limit if start is None or end is None else None
-        st = _EventState(node, plan.start_us, plan.end_us, total, flt.types, flt.min_severity, source, select)
-        return self._event_page(st, page_limit=plan.limit)
+        st = _EventState(
+            node, plan.start_us, plan.end_us, total, flt.types, flt.min_severity, source, select, plan.limit
+        )
+        return self._event_page(st)
 
-    def _event_page(self, st: _EventState, page_limit: int | None = None) -> ua.HistoryReadResult:
-        limit = self.max_values if page_limit is None else min(page_limit, self.max_values)
+    def _event_page(self, st: _EventState) -> ua.HistoryReadResult:
+        limit = self.max_values if st.page is None else min(st.page, self.max_values)
         if st.total is not None:
             limit = min(limit, st.total - st.returned)
         events: list[EventRecord] = []
@@ -604,9 +632,11 @@ def install_history_read(
     in ``executor``: pass the single worker thread that owns the store, so that reads and the
     collector's writes never use its connection at once (default: a private one-thread pool).
     ``options`` go to :class:`HistoryReadService` (``max_values``, ``config``...); event types'
-    subtypes come from the server's address space unless ``event_subtypes`` is given.
+    subtypes come from the server's address space unless ``event_subtypes`` is given, and the
+    HistoryData is pre-encoded in the worker thread (``binary``) unless ``binary=False``.
     """
     options.setdefault("event_subtypes", _aspace_subtypes(server))
+    options.setdefault("binary", True)
     service = HistoryReadService(store, tag_for_nodeid, **options)
     pool = executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="history-read")
     manager = server.iserver.history_manager

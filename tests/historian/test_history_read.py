@@ -15,7 +15,7 @@ from asyncua import ua
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from historian.history_read import HistoryReadService, site_tag_mapper
+from historian.history_read import HistoryReadService, site_source_mapper, site_tag_mapper
 from historian.store import HistoryStore
 from tanklab.history.model import EventRecord, Sample
 
@@ -316,6 +316,20 @@ def test_events_with_a_where_clause(backend) -> None:
     (r,) = svc.read(params(_event_details([like]), server))
     assert r.StatusCode.value == 0x80C2_0000  # BadFilterOperatorUnsupported
     (r,) = svc.read(params(_event_details([]), ua.NodeId("PLC.NOPE", NS)))
+    assert r.StatusCode.value == 0x8034_0000
+    # an object's events (its SourceName and below), NumValuesPerNode 1 with both times: pages of 1
+    by_source = HistoryReadService(
+        store, site_tag_mapper(store, NS), source_for_nodeid=site_source_mapper(NS)
+    )
+    d = _event_details([])
+    d.NumValuesPerNode = 1
+    (r,) = by_source.read(params(d, ua.NodeId("PLC.T1", NS)))
+    assert [e.EventFields[0].Value for e in r.HistoryData.Events] == [b"ev-0"] and r.ContinuationPoint
+    (r,) = by_source.read(params(d, ua.NodeId("PLC.T1", NS), cps=[r.ContinuationPoint]))
+    assert [e.EventFields[0].Value for e in r.HistoryData.Events] == [b"ev-1"]
+    (r,) = by_source.read(params(d, ua.NodeId("PLC.T1", NS), cps=[r.ContinuationPoint]))
+    assert r.HistoryData.Events == [] and not r.ContinuationPoint
+    (r,) = by_source.read(params(d, ua.NodeId("PLC.T1", NS + 1)))
     assert r.StatusCode.value == 0x8034_0000
 
 

@@ -114,6 +114,16 @@ async def test_bad_input_codes_through_a_server(served: Served) -> None:
         assert r.StatusCode.value == ua.StatusCodes.BadInvalidTimestampArgument
         (r,) = await _read(client, _raw(), node.nodeid, cp=b"not a point")
         assert r.StatusCode.value == ua.StatusCodes.BadContinuationPointInvalid
+        # nobody may update history: asyncua's server refuses HistoryUpdate before any history
+        # manager sees it (its permission check: BadUserAccessDenied); the service would say
+        # BadHistoryOperationUnsupported (tests/historian/test_history_read.py)
+        with pytest.raises(ua.UaStatusCodeError) as refused:
+            await node.history_update(ua.UpdateDataDetails(NodeId=node.nodeid))
+        assert refused.value.code in (
+            ua.StatusCodes.BadUserAccessDenied,
+            ua.StatusCodes.BadServiceUnsupported,
+            ua.StatusCodes.BadHistoryOperationUnsupported,
+        )
         # the server still answers after every refusal
         # asyncua asks for bounds by default: [0 s, 3 s) and the end bound, the value at 3 s
         got = await node.read_raw_history(dt(T0), dt(T0 + 3 * S))
