@@ -202,6 +202,8 @@ class SoftRows:
 
 #: daqp's sense flag of a soft constraint (daqp's constants: ACTIVE 1, LOWER 2, IMMUTABLE 4, SOFT 8).
 _DAQP_SOFT = 8
+#: daqp's exit flag of an optimum that violates a soft constraint (``DAQP_STATUS``).
+_DAQP_SOFT_OPTIMAL = 2
 
 
 class DaqpBackend:
@@ -314,6 +316,7 @@ class DaqpBackend:
             raise ValueError(f"daqp setup failed: P is not positive definite ({e})") from e
         A_general = np.ascontiguousarray(A.tocsr()[self._general].toarray()[:, keep])
         self._chol, self._A_general = chol, A_general
+        self._A_soft = np.ascontiguousarray(A_general[self._soft_pos - self._nk])
         self._given = self._shifted = None
         _, bu, bl = self._shift(q, lo, up)
         model = daqp.Model()
@@ -424,23 +427,28 @@ class DaqpBackend:
         status = DAQP_STATUS.get(int(flag), f"exit flag {int(flag)}")
         iterations, time_s = int(info["iterations"]), float(info["solve_time"])
         if flag > 0 and w.shape == (self._nk,) and np.isfinite(w).all():
-            x = self._primal(w, c, bu, bl)
+            x = self._primal(w, c, bu, bl, int(flag) == _DAQP_SOFT_OPTIMAL)
             return QpSolution(x=x, accurate=True, status=status, iterations=iterations, time_s=time_s)
         self.reset()  # a failed solve's working set is no start for the next one
         return QpSolution(x=None, accurate=False, status=status, iterations=iterations, time_s=time_s)
 
-    def _primal(self, w: FloatArray, c: FloatArray, bu: FloatArray, bl: FloatArray) -> FloatArray:
+    def _primal(
+        self, w: FloatArray, c: FloatArray, bu: FloatArray, bl: FloatArray, violated: bool
+    ) -> FloatArray:
         """v = w + c on the kept variables; each slack at its optimum given them, the violation
-        max(0, l - a'v, a'v - u) of its soft row (rows on w against the shifted bounds)."""
+        max(0, l - a'v, a'v - u) of its soft row (rows on w against the shifted bounds). daqp
+        says ``violated`` (exit flag 2) when a soft row is violated; otherwise every slack is 0
+        (a violation within daqp's primal tolerance included) and the rows are not evaluated."""
         if self._soft is None:
             x = np.array(w, dtype=np.float64)
             x += c
             return x
         x = np.zeros(self._nv)
         x[self._keep] = w + c
-        pos = self._soft_pos
-        row = self._A_general[pos - self._nk] @ w
-        x[self._soft.columns] = np.maximum(np.maximum(bl[pos] - row, row - bu[pos]), 0.0)
+        if violated:
+            pos = self._soft_pos
+            row = self._A_soft @ w
+            x[self._soft.columns] = np.maximum(np.maximum(bl[pos] - row, row - bu[pos]), 0.0)
         return x
 
     def reset(self) -> None:
