@@ -10,10 +10,22 @@ It keeps its own warm or hot start between steps: the controller never sees a so
 
 daqp (:class:`DaqpBackend`, the default on the condensed QP): a dual active-set method for small
 dense QPs, exact on its final active set (the optimum to rounding, no tolerance ladder). Rows of
-Aqp that are a unit vector on one variable (the input box u~ in [u~min, u~max] and eps~ >= 0)
-become daqp's simple bounds; the other rows are general constraints. The model object is set up
-once; each step updates the bounds and solves hot-started from the previous step's working
-set (near a steady state the set is unchanged and daqp only re-solves on it).
+Aqp that are a unit vector on one variable (the input box u~ in [u~min, u~max]) become daqp's
+simple bounds; the other rows are general constraints. The model object is set up once; each
+step updates the bounds and solves hot-started from the previous step's working set (near a
+steady state the set is unchanged and daqp only re-solves on it).
+
+Soft rows (:class:`SoftRows`, the formulation's output slacks): a slack eps >= 0 of the pair
+a'v + eps >= l, a'v - eps <= u with the cost 1/2 rho_q eps^2 + rho_l eps is not given to daqp.
+The pair becomes one two-sided row l <= a'v <= u that daqp keeps soft, with its slack weights
+(reciprocal quadratic 1/rho_q, linear rho_l) on either side::
+
+    min over eps >= max(0, l - a'v, a'v - u) of 1/2 rho_q eps^2 + rho_l eps = phi(s),
+    s = max(0, l - a'v, a'v - u),   phi(s) = 1/2 rho_q s^2 + rho_l s
+
+(phi increases on s >= 0, and with l < u at most one side is violated): the same optimum in the
+other variables, with Np nz fewer variables and 2 Np nz fewer rows for daqp. The slacks of the
+returned v are s at the solution (0 unless daqp's exit is "soft optimal").
 
 daqp is given the QP without its linear term, in the variable w = v - c shifted by the
 unconstrained minimiser c = -P^-1 q (P is positive definite on the condensed QP)::
