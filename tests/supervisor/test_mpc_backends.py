@@ -155,6 +155,10 @@ def test_daqp_soft_rows_violated_and_not() -> None:
         assert sol.x is not None
         assert np.max(np.abs(sol.x - _clarabel(P, A, q, lo, up))) <= 1e-6
         seen.add(sol.status)
+        backend.reset()  # forgets the working set, keeps the rows soft and their weights
+        again = backend.solve(q, lo, up)
+        assert again.status == sol.status and again.x is not None
+        assert np.max(np.abs(again.x - sol.x)) <= 1e-9
         if seed % 2:
             assert sol.status == "optimal" and np.array_equal(sol.x[6:], np.zeros(4))
     assert seen == {"optimal", "soft optimal"}
