@@ -72,7 +72,7 @@ def _closing(rep: Report) -> list[str]:
             o = in_ms(r.series[OURS].solver)
             parts.append(
                 f"Np = {np_}: {fmt(s.median)} / {fmt(s.p99)} ms "
-                f"(OSQP alone {fmt(o.median)} / {fmt(o.p99)} ms)"
+                f"(solver alone {fmt(o.median)} / {fmt(o.p99)} ms)"
             )
     if parts:
         lines.append("- MPC step time, Kortela configuration, median / p99: " + "; ".join(parts) + ".")

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from hypothesis import given, reject, settings
 from hypothesis import strategies as st
 
-from supervisor.mpc import DaqpBackend, MpcConfig, MpcController, MpcModel, OsqpBackend, QpBackend
+from supervisor.mpc import DaqpBackend, MpcConfig, MpcController, MpcModel, OsqpBackend, QpBackend, SoftRows
 from tanklab.enums import MpcStatus
 
 U_RANGE = 1.2e-4
@@ -74,6 +74,124 @@ def test_each_backend_finds_the_optimum_of_random_qps(seed: int) -> None:
         assert np.max(np.abs(sol.x - ref)) <= 1e-6, backend.name
         z = A @ sol.x
         assert np.all(z >= lo - 1e-8) and np.all(z <= up + 1e-8)
+
+
+def _slack_qp(
+    seed: int, n: int = 6, soft: int = 4, hard: int = 3, wide: bool = False
+) -> tuple[sp.csc_matrix, sp.csc_matrix, np.ndarray, np.ndarray, np.ndarray, SoftRows]:
+    """A QP in the formulation's slack layout: v = [x (n); eps (soft)], P = blkdiag(G'G + I,
+    diag(rho_q)), q = [random; rho_l]; rows: a box on x, ``hard`` random rows, then the pairs
+    g'x + eps >= l and g'x - eps <= u, then eps >= 0. The bounds of the soft rows are drawn so
+    that some of them cannot hold at the optimum (daqp's "soft optimal"), or ``wide`` so that
+    all of them hold (|g'x| <= |g| sqrt(n) on the box)."""
+    rng = np.random.default_rng(seed)
+    G = rng.normal(size=(n, n))
+    rho_q = rng.uniform(0.5, 3.0, soft)
+    rho_l = rng.uniform(0.0, 2.0, soft)
+    P = np.zeros((n + soft, n + soft))
+    P[:n, :n] = G.T @ G + np.eye(n)
+    P[n:, n:] = np.diag(rho_q)
+    q = np.concatenate([rng.normal(size=n) * 3.0, rho_l])
+    Gs = rng.normal(size=(soft, n))
+    H = rng.normal(size=(hard, n))
+    E = np.eye(soft)
+    A = np.vstack(
+        [
+            np.hstack([np.eye(n), np.zeros((n, soft))]),
+            np.hstack([H, np.zeros((hard, soft))]),
+            np.hstack([Gs, E]),
+            np.hstack([Gs, -E]),
+            np.hstack([np.zeros((soft, n)), E]),
+        ]
+    )
+    centre = rng.normal(size=soft) * 2.0
+    width = rng.uniform(0.05, 1.0, soft)
+    if wide:
+        width += np.abs(centre) + np.linalg.norm(Gs, axis=1) * np.sqrt(n)
+    lo = np.concatenate(
+        [np.full(n, -1.0), np.full(hard, -1.5), centre - width, np.full(soft, -np.inf), np.zeros(soft)]
+    )
+    up = np.concatenate(
+        [np.full(n, 1.0), np.full(hard, 1.5), np.full(soft, np.inf), centre + width, np.full(soft, np.inf)]
+    )
+    k = np.arange(soft)
+    layout = SoftRows(
+        columns=n + k,
+        bound_rows=2 * soft + n + hard + k,
+        lower_rows=n + hard + k,
+        upper_rows=n + hard + soft + k,
+        quadratic=rho_q,
+        linear=rho_l,
+    )
+    return sp.csc_matrix(np.triu(P)), sp.csc_matrix(A), q, lo, up, layout
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000))
+def test_daqp_with_soft_rows_finds_the_optimum_of_the_slack_qp(seed: int) -> None:
+    """daqp given the slacks as soft rows: the whole v (slacks included) is the slack QP's optimum."""
+    P, A, q, lo, up, layout = _slack_qp(seed)
+    ref = _clarabel(P, A, q, lo, up)
+    backend = DaqpBackend(1000, layout)
+    backend.setup(P, A, q, lo, up)
+    assert backend.size == (6, 3 + 4)  # the slacks and their rows are folded away
+    for _ in range(2):  # cold, then hot-started on the same QP
+        sol = backend.solve(q, lo, up)
+        assert sol.x is not None and sol.accurate, sol.status
+        assert np.max(np.abs(sol.x - ref)) <= 1e-6
+    violated = ref[6:] > 1e-6
+    assert sol.status == ("soft optimal" if violated.any() else "optimal")
+
+
+def test_daqp_soft_rows_violated_and_not() -> None:
+    """Both daqp exits of the soft form on one QP family: a soft row that cannot hold (the slack
+    at max(0, l - g'x, g'x - u) of the optimum) and, with wide soft bounds, none (slacks 0)."""
+    seen = set()
+    for seed in range(20):
+        P, A, q, lo, up, layout = _slack_qp(seed, wide=seed % 2 == 1)
+        backend = DaqpBackend(1000, layout)
+        backend.setup(P, A, q, lo, up)
+        sol = backend.solve(q, lo, up)
+        assert sol.x is not None
+        assert np.max(np.abs(sol.x - _clarabel(P, A, q, lo, up))) <= 1e-6
+        seen.add(sol.status)
+        backend.reset()  # forgets the working set, keeps the rows soft and their weights
+        again = backend.solve(q, lo, up)
+        assert again.status == sol.status and again.x is not None
+        assert np.max(np.abs(again.x - sol.x)) <= 1e-9
+        if seed % 2:
+            assert sol.status == "optimal" and np.array_equal(sol.x[6:], np.zeros(4))
+    assert seen == {"optimal", "soft optimal"}
+
+
+def test_daqp_refuses_a_soft_layout_that_is_not_the_qps() -> None:
+    P, A, q, lo, up, layout = _slack_qp(3)
+    bad = SoftRows(
+        columns=layout.columns,
+        bound_rows=layout.bound_rows,
+        lower_rows=layout.upper_rows,  # swapped: +1 and -1 rows exchanged
+        upper_rows=layout.lower_rows,
+        quadratic=layout.quadratic,
+        linear=layout.linear,
+    )
+    with pytest.raises(ValueError, match="soft rows are not pairs"):
+        DaqpBackend(1000, bad).setup(P, A, q, lo, up)
+    wrong_weight = SoftRows(
+        columns=layout.columns,
+        bound_rows=layout.bound_rows,
+        lower_rows=layout.lower_rows,
+        upper_rows=layout.upper_rows,
+        quadratic=layout.quadratic * 2.0,
+        linear=layout.linear,
+    )
+    with pytest.raises(ValueError, match="slack block"):
+        DaqpBackend(1000, wrong_weight).setup(P, A, q, lo, up)
+    backend = DaqpBackend(1000, layout)
+    backend.setup(P, A, q, lo, up)
+    q2 = q.copy()
+    q2[-1] += 1.0  # a slack's linear weight is a constant of the QP
+    with pytest.raises(ValueError, match="constant"):
+        backend.solve(q2, lo, up)
 
 
 def test_daqp_hot_start_reuses_the_working_set_and_a_new_qp_still_solves() -> None:
@@ -164,6 +282,32 @@ def test_a_transient_on_daqp_matches_osqp_at_a_tight_tolerance(z_max: float) -> 
         x = model.x_op + model.A @ (x - model.x_op) + model.B @ (res.u - model.u_op)
         u_prev = res.u
     assert hot >= 5  # near the end of the transient the working set barely changes
+
+
+def test_a_violated_output_bound_on_daqp_soft_rows_matches_osqp_on_the_slacks() -> None:
+    """T1 starts 4 cm above z_max: the first predicted levels cannot meet it, so daqp's soft
+    rows are violated ("soft optimal"); the plans, costs and violations equal OSQP's polished
+    optimum of the QP with its slack variables at 1e-8, sample by sample, while the
+    rate-limited plan brings the level down."""
+    ctrl = _kortela_like(z_max=0.46)
+    check = _kortela_like(z_max=0.46, solver="osqp", tolerances=(1e-8,), max_iter=200_000)
+    x = np.array([0.5, 0.2, 0.3])
+    u_prev = np.array([5e-5, 3e-5])
+    model = ctrl.model
+    statuses = []
+    for _ in range(12):
+        r = np.array([0.45, 0.2])
+        res = ctrl.plan(x, r, u_prev)
+        ref = check.plan(x, r, u_prev)
+        assert res.status == ref.status == MpcStatus.SOLVED
+        assert np.max(np.abs(res.planned_u - ref.planned_u)) <= 1e-6 * U_RANGE
+        assert res.objective == pytest.approx(ref.objective, rel=1e-6)
+        assert res.max_output_violation == pytest.approx(ref.max_output_violation, rel=1e-6, abs=1e-9)
+        if res.max_output_violation > 1e-5:  # [m], well above daqp's primal tolerance
+            statuses.append(res.osqp_status)
+        x = model.x_op + model.A @ (x - model.x_op) + model.B @ (res.u - model.u_op)
+        u_prev = res.u
+    assert len(statuses) == 12 and set(statuses) == {"soft optimal"}
 
 
 def test_model_update_on_daqp_equals_a_fresh_controller() -> None:

@@ -16,7 +16,7 @@ The package, one job per module:
 The choice of daqp, and the numbers behind it, are in docs/decisions/0027-qp-library.md.
 """
 
-from supervisor.mpc.backends import DaqpBackend, OsqpBackend, QpBackend, QpSolution
+from supervisor.mpc.backends import DaqpBackend, OsqpBackend, QpBackend, QpSolution, SoftRows
 from supervisor.mpc.controller import MpcController
 from supervisor.mpc.formulation import SPARSE_FROM_HORIZON
 from supervisor.mpc.model import MpcConfig, MpcModel, MpcResult, SolvedBy
@@ -31,5 +31,6 @@ __all__ = [
     "OsqpBackend",
     "QpBackend",
     "QpSolution",
+    "SoftRows",
     "SolvedBy",
 ]

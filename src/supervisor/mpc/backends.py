@@ -10,10 +10,22 @@ It keeps its own warm or hot start between steps: the controller never sees a so
 
 daqp (:class:`DaqpBackend`, the default on the condensed QP): a dual active-set method for small
 dense QPs, exact on its final active set (the optimum to rounding, no tolerance ladder). Rows of
-Aqp that are a unit vector on one variable (the input box u~ in [u~min, u~max] and eps~ >= 0)
-become daqp's simple bounds; the other rows are general constraints. The model object is set up
-once; each step updates the bounds and solves hot-started from the previous step's working
-set (near a steady state the set is unchanged and daqp only re-solves on it).
+Aqp that are a unit vector on one variable (the input box u~ in [u~min, u~max]) become daqp's
+simple bounds; the other rows are general constraints. The model object is set up once; each
+step updates the bounds and solves hot-started from the previous step's working set (near a
+steady state the set is unchanged and daqp only re-solves on it).
+
+Soft rows (:class:`SoftRows`, the formulation's output slacks): a slack eps >= 0 of the pair
+a'v + eps >= l, a'v - eps <= u with the cost 1/2 rho_q eps^2 + rho_l eps is not given to daqp.
+The pair becomes one two-sided row l <= a'v <= u that daqp keeps soft, with its slack weights
+(reciprocal quadratic 1/rho_q, linear rho_l) on either side::
+
+    min over eps >= max(0, l - a'v, a'v - u) of 1/2 rho_q eps^2 + rho_l eps = phi(s),
+    s = max(0, l - a'v, a'v - u),   phi(s) = 1/2 rho_q s^2 + rho_l s
+
+(phi increases on s >= 0, and with l < u at most one side is violated): the same optimum in the
+other variables, with Np nz fewer variables and 2 Np nz fewer rows for daqp. The slacks of the
+returned v are s at the solution (0 unless daqp's exit is "soft optimal").
 
 daqp is given the QP without its linear term, in the variable w = v - c shifted by the
 unconstrained minimiser c = -P^-1 q (P is positive definite on the condensed QP)::
@@ -139,6 +151,10 @@ class QpBackend(Protocol):
         """Solve with this step's vectors, warm- or hot-started from the previous step."""
         ...
 
+    def solve_data(self, th: FloatArray) -> QpSolution:
+        """``solve(*vectors(th))``, the step's data th straight to the solver (the same numbers)."""
+        ...
+
     def reset(self) -> None:
         """Forget the warm or hot start (the next solve starts cold)."""
         ...
@@ -159,19 +175,47 @@ def _full_symmetric(P_upper: sp.csc_matrix) -> FloatArray:
     return np.ascontiguousarray(U + U.T - np.diag(np.diag(U)))
 
 
-def _simple_bounds(A: sp.csc_matrix) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """(bound_row, general): for each variable j the first row of A that is the unit vector
-    e_j' in A's stored pattern (-1 if none), and the remaining rows in order."""
+def _simple_bounds(
+    A: sp.csc_matrix, dropped: NDArray[np.bool_]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(bound_row, general): for each variable j the first row of A, not ``dropped``, that is
+    the unit vector e_j' in A's stored pattern (-1 if none), and the remaining rows not
+    ``dropped``, in order."""
     csr = A.tocsr()
     counts = np.diff(csr.indptr)
     bound_row = np.full(A.shape[1], -1, dtype=np.int64)
-    for row in np.flatnonzero(counts == 1):
+    for row in np.flatnonzero((counts == 1) & ~dropped):
         j = int(csr.indices[csr.indptr[row]])
         if csr.data[csr.indptr[row]] == 1.0 and bound_row[j] < 0:
             bound_row[j] = row
-    used = np.zeros(A.shape[0], dtype=bool)
+    used = dropped.copy()
     used[bound_row[bound_row >= 0]] = True
     return bound_row, np.flatnonzero(~used).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class SoftRows:
+    """Slack variables of soft two-sided rows, as the formulation lays them out.
+
+    Slack ``columns[i]`` (a variable eps_i >= 0 by its unit row ``bound_rows[i]``, with the
+    cost 1/2 ``quadratic[i]`` eps_i^2 + ``linear[i]`` eps_i and no cross term in P) enters row
+    ``lower_rows[i]`` with +1 (a' v + eps_i >= l, upper bound +inf) and row ``upper_rows[i]``
+    with -1 (a' v - eps_i <= u, lower bound -inf), the two rows equal elsewhere. The linear
+    weights are constants of the QP (q's entries for the slacks never change).
+    """
+
+    columns: NDArray[np.int64]
+    bound_rows: NDArray[np.int64]
+    lower_rows: NDArray[np.int64]
+    upper_rows: NDArray[np.int64]
+    quadratic: FloatArray
+    linear: FloatArray
+
+
+#: daqp's sense flag of a soft constraint (daqp's constants: ACTIVE 1, LOWER 2, IMMUTABLE 4, SOFT 8).
+_DAQP_SOFT = 8
+#: daqp's exit flag of an optimum that violates a soft constraint (``DAQP_STATUS``).
+_DAQP_SOFT_OPTIMAL = 2
 
 
 class DaqpBackend:
@@ -181,17 +225,25 @@ class DaqpBackend:
     ----------
     iter_limit : int
         daqp's iteration budget per solve (``MpcConfig.max_iter``).
+    soft : SoftRows, optional
+        The QP's output slacks: daqp is given the QP without them, each pair of rows merged into
+        one two-sided row that daqp keeps soft with the same weights (module docstring).
     """
 
-    def __init__(self, iter_limit: int) -> None:
+    def __init__(self, iter_limit: int, soft: SoftRows | None = None) -> None:
         self._iter_limit = int(iter_limit)
+        self._soft = soft
         self._model: Any = None
-        self._bound_row = np.zeros(0, dtype=np.int64)
-        self._general = np.zeros(0, dtype=np.int64)
-        self._up_index = np.zeros(0, dtype=np.int64)
+        self._keep = np.zeros(0, dtype=np.int64)
+        self._bu_index = np.zeros(0, dtype=np.int64)
+        self._bl_index = np.zeros(0, dtype=np.int64)
+        self._soft_pos = np.zeros(0, dtype=np.int64)
+        self._sense = np.zeros(0, dtype=np.int32)
         self._n_rows = 0
         self._nv = 0
+        self._nk = 0
         self._map = np.zeros((0, 0))
+        self._daqp_map = np.zeros((0, 0))
         # the arrays last handed out by ``vectors`` and daqp's form of them (same product)
         self._given: tuple[FloatArray, FloatArray, FloatArray] | None = None
         self._shifted: tuple[FloatArray, FloatArray, FloatArray] | None = None
@@ -200,39 +252,98 @@ class DaqpBackend:
     def name(self) -> BackendName:
         return "daqp"
 
+    @property
+    def size(self) -> tuple[int, int]:
+        """(variables, general rows) of the QP daqp is given (slacks folded into soft rows)."""
+        return self._nk, self._bu_index.size - self._nk
+
     def setup(
         self, P: sp.csc_matrix, A: sp.csc_matrix, q: FloatArray, lo: FloatArray, up: FloatArray
     ) -> None:
-        self._bound_row, self._general = _simple_bounds(A)
-        nc = A.shape[0]
-        # daqp's rows: one simple bound per variable (a missing one is the extra, infinite
-        # entry at index nc), then the general rows of A
-        self._up_index = np.concatenate([np.where(self._bound_row >= 0, self._bound_row, nc), self._general])
-        self._n_rows = nc
-        self._nv = A.shape[1]
+        nc, nv = A.shape
+        self._n_rows, self._nv = nc, nv
+        drop_cols = np.zeros(nv, dtype=bool)
+        drop_rows = np.zeros(nc, dtype=bool)
+        upper_of = np.arange(nc)
+        soft = self._soft
+        if soft is not None:
+            drop_cols[soft.columns] = True
+            drop_rows[soft.bound_rows] = True
+            drop_rows[soft.upper_rows] = True
+            upper_of[soft.lower_rows] = soft.upper_rows
+            self._check_soft(P, A, soft, drop_cols)
+        self._keep = np.flatnonzero(~drop_cols).astype(np.int64)
+        A_keep = A.tocsc()[:, self._keep]
+        bound_row, general = _simple_bounds(A_keep, drop_rows)
+        self._general = general
+        # daqp's rows: one simple bound per kept variable (a missing one is the extra, infinite
+        # entry at index nc), then the general rows; a merged soft row takes its lower bound
+        # from the lower row and its upper bound from the upper row
+        simple = np.where(bound_row >= 0, bound_row, nc)
+        self._bl_index = np.concatenate([simple, general])
+        self._bu_index = np.concatenate([simple, upper_of[general]])
+        self._nk = self._keep.size
+        sense = np.zeros(self._bl_index.size, dtype=np.int32)
+        if soft is not None:
+            pos = {int(r): k for k, r in enumerate(general)}
+            self._soft_pos = np.array([self._nk + pos[int(r)] for r in soft.lower_rows], dtype=np.int64)
+            sense[self._soft_pos] = _DAQP_SOFT
+        self._sense = sense
         # l and u with one extra, infinite entry each (the missing bounds), filled per step
         self._ext_lo = np.full(nc + 1, -np.inf)
         self._ext_up = np.full(nc + 1, np.inf)
         self._make(P, A, q, lo, up)
 
+    @staticmethod
+    def _check_soft(P: sp.csc_matrix, A: sp.csc_matrix, soft: SoftRows, drop_cols: NDArray[np.bool_]) -> None:
+        """ValueError unless P and A have the layout ``soft`` describes (:class:`SoftRows`)."""
+        Pd = P.toarray()
+        cols = soft.columns
+        block = Pd[np.ix_(cols, cols)]
+        if np.any(Pd[np.ix_(~drop_cols, cols)]) or np.any(Pd[np.ix_(cols, ~drop_cols)]):
+            raise ValueError("daqp setup failed: the slacks have cross terms in P")
+        if not np.array_equal(block, np.diag(soft.quadratic)) or np.any(soft.quadratic <= 0.0):
+            raise ValueError("daqp setup failed: P's slack block is not diag(quadratic) > 0")
+        Ad = A.toarray()
+        lower, upper = Ad[soft.lower_rows], Ad[soft.upper_rows]
+        k = np.arange(cols.size)
+        if not (
+            np.array_equal(lower[:, ~drop_cols], upper[:, ~drop_cols])
+            and np.array_equal(lower[k, cols], np.ones(cols.size))
+            and np.array_equal(upper[k, cols], -np.ones(cols.size))
+            and np.count_nonzero(lower[:, drop_cols]) == cols.size
+            and np.count_nonzero(upper[:, drop_cols]) == cols.size
+        ):
+            raise ValueError("daqp setup failed: the soft rows are not pairs a'v + eps >= l, a'v - eps <= u")
+
     def _make(
         self, P: sp.csc_matrix, A: sp.csc_matrix, q: FloatArray, lo: FloatArray, up: FloatArray
     ) -> None:
-        H = _full_symmetric(P)
+        keep = self._keep
+        H = np.ascontiguousarray(_full_symmetric(P)[np.ix_(keep, keep)])
         try:
             with _one_blas_thread():
                 chol = scipy.linalg.cho_factor(H)
         except np.linalg.LinAlgError as e:
             raise ValueError(f"daqp setup failed: P is not positive definite ({e})") from e
-        A_general = np.ascontiguousarray(A.tocsr()[self._general].toarray())
+        A_general = np.ascontiguousarray(A.tocsr()[self._general].toarray()[:, keep])
         self._chol, self._A_general = chol, A_general
+        self._A_soft = np.ascontiguousarray(A_general[self._soft_pos - self._nk])
         self._given = self._shifted = None
         _, bu, bl = self._shift(q, lo, up)
         model = daqp.Model()
-        flag, _ = model.setup(H, None, A_general, bu, bl)  # no linear term: f = 0 (module docstring)
+        # no linear term: f = 0 (module docstring)
+        flag, _ = model.setup(H, None, A_general, bu, bl, self._sense.copy())
         if flag < 0:
             raise ValueError(f"daqp setup failed: exit flag {flag} (is P positive definite?)")
         model.settings = {"iter_limit": self._iter_limit}
+        if self._soft is not None:
+            nd = self._sense.size
+            rho = np.ones(nd)
+            w = np.zeros(nd)
+            rho[self._soft_pos] = 1.0 / self._soft.quadratic
+            w[self._soft_pos] = self._soft.linear
+            model.soft_weights(rho_l=rho, rho_u=rho, w_l=w, w_u=w)
         self._model = model
 
     def _bounds(self, lo: FloatArray, up: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -240,60 +351,71 @@ class DaqpBackend:
         n = self._n_rows
         self._ext_up[:n] = up
         self._ext_lo[:n] = lo
-        return self._ext_up[self._up_index], self._ext_lo[self._up_index]
+        return self._ext_up[self._bu_index], self._ext_lo[self._bl_index]
 
     def _shift(
         self, q: FloatArray, lo: FloatArray, up: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(c, bupper, blower) for w = v - c, c = -P^-1 q: daqp's bounds (:meth:`_bounds`) minus
-        c on the simple bounds and minus A_general c on the general rows (+-inf stay +-inf)."""
-        c = -scipy.linalg.cho_solve(self._chol, q)
+        """(c, bupper, blower) for w = v - c, c = -P^-1 q (kept variables): daqp's bounds
+        (:meth:`_bounds`) minus c on the simple bounds and minus A_general c on the general rows
+        (+-inf stay +-inf)."""
+        if self._soft is not None and not np.array_equal(q[self._soft.columns], self._soft.linear):
+            raise ValueError("the slacks' linear cost is a constant of the QP (SoftRows.linear)")
+        c = -scipy.linalg.cho_solve(self._chol, q[self._keep])
         bu, bl = self._bounds(lo, up)
-        nv = self._nv
+        nk = self._nk
         shift = self._A_general @ c
         for b in (bu, bl):
-            b[:nv] -= c
-            b[nv:] -= shift
+            b[:nk] -= c
+            b[nk:] -= shift
         return c, bu, bl
 
     def set_vector_map(self, M: FloatArray) -> None:
         """The map th -> [c; bupper; blower] (daqp's row order) from [q; l; u] = M th: c = -P^-1 q
         and the bounds shifted as in :meth:`_shift`, column by column (rows infinite in M, whose
-        th-part is zero, stay the constant +-inf); kept with M itself in one matrix."""
+        th-part is zero, stay the constant +-inf); kept with M itself in one matrix, and alone
+        for :meth:`solve_data`."""
         nv, nc = self._nv, self._n_rows
         Mq, Ml, Mu = M[:nv], M[nv : nv + nc], M[nv + nc :]
         with _one_blas_thread():
-            C = -scipy.linalg.cho_solve(self._chol, Mq)
+            C = -scipy.linalg.cho_solve(self._chol, Mq[self._keep])
             # daqp's rows act on w as the identity (simple bounds) and A_general (general rows)
             shift = np.vstack([C, self._A_general @ C])
         maps = []
-        for Mb, inf in ((Mu, np.inf), (Ml, -np.inf)):
+        for Mb, inf, index in ((Mu, np.inf, self._bu_index), (Ml, -np.inf, self._bl_index)):
             ext = np.vstack([Mb, np.zeros(Mb.shape[1])])
             ext[-1, -1] = inf  # the missing simple bounds (index nc of the daqp rows)
-            B = ext[self._up_index]
+            B = ext[index]
             finite = np.isfinite(B[:, -1])
             B[finite] -= shift[finite]
             maps.append(B)
-        self._map = np.ascontiguousarray(np.vstack([M, C, *maps]))
+        self._daqp_map = np.ascontiguousarray(np.vstack([C, *maps]))
+        self._map = np.ascontiguousarray(np.vstack([M, self._daqp_map]))
         self._given = self._shifted = None
+
+    def _split(self, out: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(c, bupper, blower) of one product with daqp's map."""
+        nk, nd = self._nk, self._bu_index.size
+        return out[:nk], out[nk : nk + nd], out[nk + nd :]
 
     def vectors(self, th: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         out = self._map @ th
-        nv, nc, nd = self._nv, self._n_rows, self._up_index.size
+        nv, nc = self._nv, self._n_rows
         q, lo, up = out[:nv], out[nv : nv + nc], out[nv + nc : nv + 2 * nc]
         for v in (q, lo, up):
             v.setflags(write=False)  # what is handed out is what daqp's form was made from
-        k = nv + 2 * nc
         self._given = (q, lo, up)
-        self._shifted = (out[k : k + nv], out[k + nv : k + nv + nd], out[k + nv + nd :])
+        self._shifted = self._split(out[nv + 2 * nc :])
         return q, lo, up
 
     def update_matrices(self, P: sp.csc_matrix, A: sp.csc_matrix, x_offset: FloatArray) -> None:
         # a re-linearisation changes H and A: a new setup (the hot start is a working set of
         # the old QP, so it is not carried over); the caller sets the new vector map
         del x_offset
-        zero = np.zeros(P.shape[0])
-        self._make(P, A, zero, np.full(self._n_rows, -np.inf), np.full(self._n_rows, np.inf))
+        q = np.zeros(P.shape[0])
+        if self._soft is not None:
+            q[self._soft.columns] = self._soft.linear
+        self._make(P, A, q, np.full(self._n_rows, -np.inf), np.full(self._n_rows, np.inf))
 
     def solve(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> QpSolution:
         given, self._given = self._given, None
@@ -301,21 +423,50 @@ class DaqpBackend:
             c, bu, bl = self._shifted  # the product of ``vectors`` that made q, lo and up
         else:
             c, bu, bl = self._shift(q, lo, up)
-        self._model.update(bupper=bu, blower=bl)
-        w, _, flag, info = self._model.solve()
+        return self._solve(c, bu, bl)
+
+    def solve_data(self, th: FloatArray) -> QpSolution:
+        """Solve the QP of the step's data th ([q; l; u] = M th, :meth:`set_vector_map`): one
+        product gives daqp's bounds and c, no q, l, u are formed (the same numbers as
+        ``solve(*vectors(th))``)."""
+        self._given = None
+        return self._solve(*self._split(self._daqp_map @ th))
+
+    def _solve(self, c: FloatArray, bu: FloatArray, bl: FloatArray) -> QpSolution:
+        model = self._model
+        model.update(bupper=bu, blower=bl)
+        w, _, flag, info = model.solve()
         status = DAQP_STATUS.get(int(flag), f"exit flag {int(flag)}")
         iterations, time_s = int(info["iterations"]), float(info["solve_time"])
-        x = np.array(w, dtype=np.float64)
-        if flag > 0 and x.shape == (q.size,) and np.isfinite(x).all():
-            x += c
+        if flag > 0 and w.shape == (self._nk,) and np.isfinite(w).all():
+            x = self._primal(w, c, bu, bl, int(flag) == _DAQP_SOFT_OPTIMAL)
             return QpSolution(x=x, accurate=True, status=status, iterations=iterations, time_s=time_s)
         self.reset()  # a failed solve's working set is no start for the next one
         return QpSolution(x=None, accurate=False, status=status, iterations=iterations, time_s=time_s)
 
+    def _primal(
+        self, w: FloatArray, c: FloatArray, bu: FloatArray, bl: FloatArray, violated: bool
+    ) -> FloatArray:
+        """v = w + c on the kept variables; each slack at its optimum given them, the violation
+        max(0, l - a'v, a'v - u) of its soft row (rows on w against the shifted bounds). daqp
+        says ``violated`` (exit flag 2) when a soft row is violated; otherwise every slack is 0
+        (a violation within daqp's primal tolerance included) and the rows are not evaluated."""
+        if self._soft is None:
+            x = np.array(w, dtype=np.float64)
+            x += c
+            return x
+        x = np.zeros(self._nv)
+        x[self._keep] = w + c
+        if violated:
+            pos = self._soft_pos
+            row = self._A_soft @ w
+            x[self._soft.columns] = np.maximum(np.maximum(bl[pos] - row, row - bu[pos]), 0.0)
+        return x
+
     def reset(self) -> None:
         if self._model is not None:
-            # an explicit sense (all inactive) overrides the hot start
-            self._model.update(sense=np.zeros(len(self._up_index), dtype=np.int32))
+            # an explicit sense (all inactive, the soft rows kept soft) overrides the hot start
+            self._model.update(sense=self._sense.copy())
 
 
 class OsqpBackend:
@@ -401,6 +552,9 @@ class OsqpBackend:
     def reset(self) -> None:
         self._ws_x = self._ws_y = None
 
+    def solve_data(self, th: FloatArray) -> QpSolution:
+        return self.solve(*self.vectors(th))
+
     def solve(self, q: FloatArray, lo: FloatArray, up: FloatArray) -> QpSolution:
         """The ladder: each rung solves to its tolerance with polishing, continuing the ADMM
         iterations of the previous rung (OSQP keeps its iterate between ``solve`` calls). A
@@ -469,8 +623,9 @@ def make_backend(
     check_termination: int,
     shift_x: NDArray[np.int64],
     shift_y: NDArray[np.int64],
+    soft: SoftRows | None = None,
 ) -> QpBackend:
-    """The backend ``name`` with the configuration's settings."""
+    """The backend ``name`` with the configuration's settings (``soft``: daqp only)."""
     if name == "daqp":
-        return DaqpBackend(max_iter)
+        return DaqpBackend(max_iter, soft)
     return OsqpBackend(tolerances, polish, max_iter, check_termination, shift_x, shift_y)

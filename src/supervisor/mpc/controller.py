@@ -117,6 +117,7 @@ class MpcController:
             check_termination=config.check_termination,
             shift_x=qp.shift_x,
             shift_y=qp.shift_y,
+            soft=qp.soft_rows(),
         )
         P, Aqp = qp.qp_matrices()
         q, lo, up = qp.qp_vectors(np.zeros(n), np.zeros(self._n_eta), np.zeros((self._N, nz)), model.u_op)
@@ -334,9 +335,9 @@ class MpcController:
         # form of them from the same product); so the same QP data always gives the same plan
         backend = self._backend
         if r.ndim == 1:
-            sol = backend.solve(*backend.vectors(qp.step_data(dx0, eta, r, u_prev, u_base)))
+            sol = backend.solve_data(qp.step_data(dx0, eta, r, u_prev, u_base))
         elif (r == r[0]).all():
-            sol = backend.solve(*backend.vectors(qp.step_data(dx0, eta, r[0], u_prev, u_base)))
+            sol = backend.solve_data(qp.step_data(dx0, eta, r[0], u_prev, u_base))
         else:
             sol = backend.solve(*qp.qp_vectors(dx0, eta, r, u_prev))
         solved_by: SolvedBy = backend.name

@@ -95,6 +95,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from supervisor.mpc.backends import SoftRows
 from supervisor.mpc.cost import PlanCost
 from supervisor.mpc.model import (
     BoolArray,
@@ -443,6 +444,23 @@ class QpFormulation:
             for rows in (zlo, zhi, slice(self.row_eps, self.row_eps + ns)):
                 Amask[rows, es] = np.eye(ns, dtype=bool)
         return P, Pmask, Aqp, Amask
+
+    def soft_rows(self) -> SoftRows | None:
+        """The output slacks as :class:`~supervisor.mpc.backends.SoftRows` (None without output
+        bounds): eps~ of stage k and output i is the slack of rows z~low and z~high of the same
+        stage and output, with the weights rho_q~ and rho_l~ (constant in q)."""
+        if not self.has_z_rows:
+            return None
+        ns = self.N * self.nz
+        k = np.arange(ns, dtype=np.int64)
+        return SoftRows(
+            columns=self.eps_off + k,
+            bound_rows=self.row_eps + k,
+            lower_rows=self.row_zlo + k,
+            upper_rows=self.row_zhi + k,
+            quadratic=np.tile(self.rho_q_t, self.N),
+            linear=np.tile(self.rho_l_t, self.N),
+        )
 
     def scaled_w(self, eta: FloatArray) -> FloatArray:
         return self.cost.scaled_w(eta)
