@@ -1,22 +1,22 @@
-"""The historian's OPC UA server: its status nodes, secured like every tier, and the seam where
-HistoryRead is installed.
+"""The historian's OPC UA server: its status nodes, secured like every tier, and HistoryRead of
+the tiers' nodes.
 
 ``opc.tcp://HOST:PORT/tanklab/historian`` (port base + 3, 4843 by default), built through
 :func:`tanklab_io.ua_security.start_tier_server` like the other tiers: the same security policies,
 users and roles, audit log and audit events. Its own nodes are ``Historian.Identity.*`` and
 ``Historian.Status.*`` (:func:`tanklab.tags.historian_tags`, all read-only). History of the
-recorded tiers' nodes is served by :func:`install_history` (the one call where the HistoryRead
-service of :mod:`historian.history_read` goes in, mapping the tiers' NodeIds onto store tags).
+recorded tiers' nodes is served by :meth:`HistorianServer.install_history` (the HistoryRead
+service of :mod:`historian.history_read`, the tiers' NodeIds mapped onto store tags).
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 from typing import Any
 
 from asyncua import ua
 
+from historian.history_read import install_history_read
 from historian.store import HistoryStore
 from tanklab.config import SiteConfig
 from tanklab.handlers import HandlerTable
@@ -52,19 +52,14 @@ class HistorianServer:
         self.publisher = self.tier.publisher
         log.info("historian server listening at %s", self.url)
 
-    def install_history(self, store_for_reads: HistoryStore, recorded: frozenset[str]) -> bool:
-        """The HistoryRead seam: install :mod:`historian.history_read` (issue 16, its own module)
-        on this server when it is there; returns whether it was.
+    def install_history(self, store_for_reads: HistoryStore, recorded: frozenset[str]) -> None:
+        """Serve HistoryRead of the recorded tiers' nodes from ``store_for_reads``
+        (:func:`historian.history_read.install_history_read`).
 
         ``recorded`` are the tags history is served for: the tiers' NodeIds, ``ns=<urn:tanklab>;
         s=<tag>``, mirrored (architecture, "History"); any other NodeId maps to no tag.
         """
         assert self.tier is not None
-        try:
-            module: Any = importlib.import_module("historian.history_read")
-        except ImportError:
-            log.info("historian: no HistoryRead service in this build (historian.history_read)")
-            return False
         idx = TANKLAB_INDEX
 
         def tag_for_nodeid(nodeid: ua.NodeId) -> str | None:
@@ -73,8 +68,7 @@ class HistorianServer:
                 return ident
             return None
 
-        module.install_history_read(self.tier.server, store_for_reads, tag_for_nodeid)
-        return True
+        install_history_read(self.tier.server, store_for_reads, tag_for_nodeid)
 
     async def publish(self, values: dict[str, Any]) -> None:
         assert self.publisher is not None
