@@ -54,9 +54,10 @@ for the banner, stderr dropped, this process's environment)."""
 
 
 def tanklab_pids(base: int) -> list[int]:
-    """Live tankctl processes bound (by their arguments) to the ports base..base+2
-    (``tanklab_testing.procs.tankctl_pids``, which the restart benchmark counts with too)."""
-    return tankctl_pids_on(base, 3)
+    """Live tankctl processes bound (by their arguments) to the ports base..base+3, the
+    historian's included (``tanklab_testing.procs.tankctl_pids``, which the restart benchmark
+    counts with too)."""
+    return tankctl_pids_on(base, 4)
 
 
 def stop_process(proc: subprocess.Popen[str], deadline_s: float = 20.0) -> None:

@@ -40,7 +40,7 @@ import yaml
 from helpers import free_port, hang_bound, identity, server_security, wait_until
 from tankctl import health
 from tanklab.config import load_site, parse_endpoint_url
-from tanklab.tags import plant_tags, plc_tags, supervisor_tags
+from tanklab.tags import historian_tags, plant_tags, plc_tags, supervisor_tags
 
 ROOT = Path(__file__).resolve().parents[1]
 COMPOSE = ROOT / "docker-compose.yml"
@@ -270,6 +270,7 @@ def test_health_default_nodes_are_in_the_contract() -> None:
         "plant": {t.path for t in plant_tags(site)},
         "plc": {t.path for t in plc_tags(site)},
         "supervisor": {t.path for t in supervisor_tags(site)},
+        "historian": {t.path for t in historian_tags(site)},
     }
     for tier, path in health.DEFAULT_PATHS.items():
         assert path in paths[tier], f"{tier}: {path} is not a node of the contract"

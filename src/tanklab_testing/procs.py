@@ -125,7 +125,7 @@ def tankctl_pids(
     return found
 
 
-def tankctl_pids_on(base: int, count: int = 3) -> list[int]:
+def tankctl_pids_on(base: int, count: int = 4) -> list[int]:
     """Live tankctl processes bound (by their arguments) to the ports base .. base + count - 1."""
     return sorted({p for ps in tankctl_pids([base + k for k in range(count)]).values() for p in ps})
 

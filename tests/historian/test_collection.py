@@ -160,7 +160,18 @@ async def test_the_store_holds_what_the_tiers_published_with_gaps_marked(stack: 
         by_time = {x.t_us: x for x in published}
         # every Good sample stored is one the tier published, exactly
         strays = [x for x in good if by_time.get(x.t_us) != x]
-        assert not strays, (tag, strays[:3])
+        if tag in (PLC_PV, PLC_SCAN):
+            # except the PLC's last publishes before its kill: a publish can reach the
+            # historian's session and not the test's (the process died between the two); those
+            # come after the last one the test saw, within a second, and the scans count on
+            last_seen = max(published, key=lambda x: x.t_us)
+            assert all(0 < x.t_us - last_seen.t_us <= 1_000_000 for x in strays), (tag, last_seen, strays[:3])
+            if tag == PLC_SCAN:
+                assert [x.value for x in strays] == list(
+                    range(last_seen.value + 1, last_seen.value + 1 + len(strays))
+                )
+        else:
+            assert not strays, (tag, strays[:3])
         # every published sample missing from the store (in the recorded span) lies in a marked gap
         times = [x.t_us for x in got]
         held = set(times)

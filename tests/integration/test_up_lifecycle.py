@@ -79,7 +79,7 @@ async def test_second_up_refuses_busy_ports_and_a_running_run_dir_and_the_first_
     try:
         pids = {p.name: p.read_text() for p in first.pid_files()}
         stamps = {p.name: p.stat().st_mtime_ns for p in first.pid_files()}
-        assert set(pids) == {"up.pid", "plant.pid", "plc.pid", "supervisor.pid"}
+        assert set(pids) == {"up.pid", "plant.pid", "plc.pid", "supervisor.pid", "historian.pid"}
 
         def up(*args: str) -> subprocess.CompletedProcess[str]:
             cmd = [sys.executable, "-m", "tankctl", "up", "--config", str(CONFIG), "--no-board", *args]
