@@ -8,9 +8,11 @@ home (``conftest.security_home``) and clients secured as them.
 
 from __future__ import annotations
 
+import asyncio
 import os
 import signal
 import subprocess
+import sys
 from pathlib import Path
 
 from asyncua import Client
@@ -105,3 +107,21 @@ async def secure(
     client = new_client(url, timeout_s)
     await secure_client(client, identity(user, tier=tier))
     return client
+
+
+async def tankctl_at(
+    base: int, *args: str, env: dict[str, str] | None = None, bound_s: float = 120.0
+) -> subprocess.CompletedProcess[str]:
+    """Run an operator command (``python -m tankctl ARGS --base-port BASE``) against the stack
+    at ``base``, in a thread: the test's event loop (and the OPC UA clients it holds) keeps
+    running while the command does. ``bound_s`` bounds a hang (not a speed check)."""
+    return await asyncio.to_thread(
+        subprocess.run,
+        [sys.executable, "-m", "tankctl", *args, "--base-port", str(base)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=bound_s,
+        check=False,
+        env=env,
+    )

@@ -6,12 +6,10 @@ they print is checked against the store the historian wrote (read directly, the 
 
 from __future__ import annotations
 
-import asyncio
 import csv
 import io
 import json
 import subprocess
-import sys
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -20,7 +18,7 @@ from typing import Any
 import pyarrow.parquet as pq
 import pytest
 
-from helpers import ROOT, wait_until
+from helpers import tankctl_at, wait_until
 from historian.store.sqlite import SQLiteStore
 from tanklab import paths
 from tanklab_testing.procs import free_base_port
@@ -34,17 +32,11 @@ PV = paths.plc.loop("LIC1").pv
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 
-async def tankctl(*args: str, base: int) -> subprocess.CompletedProcess[str]:
-    """An operator command against the stack at ``base``, in a thread (the test's loop runs on)."""
-    return await asyncio.to_thread(
-        subprocess.run,
-        [sys.executable, "-m", "tankctl", *args, "--base-port", str(base)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=120,
-        check=False,
-    )
+async def tankctl(
+    *args: str, base: int, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """An operator command against the stack at ``base`` (:func:`helpers.tankctl_at`)."""
+    return await tankctl_at(base, *args, env=env)
 
 
 def iso(t_us: int) -> str:

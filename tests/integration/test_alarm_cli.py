@@ -18,10 +18,8 @@ Waits are on node values (``wait_until``), never on elapsed time.
 
 from __future__ import annotations
 
-import asyncio
 import json
 import subprocess
-import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -29,7 +27,7 @@ from typing import Any
 import pytest
 from asyncua import ua
 
-from helpers import ROOT, secure, wait_until
+from helpers import secure, tankctl_at, wait_until
 from tanklab import paths
 from tanklab.tags import NAMESPACE_URI
 from tanklab_testing.procs import free_base_port
@@ -39,17 +37,11 @@ from tanklab_testing.stack import Stack
 pytestmark = pytest.mark.process
 
 
-async def tankctl(*args: str, base: int) -> subprocess.CompletedProcess[str]:
-    """An operator command against the stack at ``base``, in a thread (the test's loop runs on)."""
-    return await asyncio.to_thread(
-        subprocess.run,
-        [sys.executable, "-m", "tankctl", *args, "--base-port", str(base)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=60,
-        check=False,
-    )
+async def tankctl(
+    *args: str, base: int, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """An operator command against the stack at ``base`` (:func:`helpers.tankctl_at`)."""
+    return await tankctl_at(base, *args, env=env)
 
 
 @pytest.fixture

@@ -11,14 +11,13 @@ import asyncio
 import os
 import signal
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 from asyncua import Client
 
-from helpers import ROOT, TierProcess, UpProcess, free_base_port, secure, wait_until
+from helpers import ROOT, TierProcess, UpProcess, free_base_port, secure, tankctl_at, wait_until
 from tanklab.enums import GainSource, LoopMode
 from tanklab_io.ua_client import resolve
 
@@ -29,18 +28,8 @@ pytestmark = pytest.mark.process
 async def tankctl(
     *args: str, base: int, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
-    """Run an operator command against the stack at ``base``, in a thread: the test's event
-    loop (and the OPC UA clients it holds) keeps running while the command does."""
-    return await asyncio.to_thread(
-        subprocess.run,
-        [sys.executable, "-m", "tankctl", *args, "--base-port", str(base)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=60,
-        check=False,
-        env=env,
-    )
+    """An operator command against the stack at ``base`` (:func:`helpers.tankctl_at`)."""
+    return await tankctl_at(base, *args, env=env)
 
 
 async def value(client: Client, path: str):
