@@ -55,7 +55,8 @@ def test_an_unavailable_store_buffers_bounded_then_gets_everything_kept(tmp_path
         w.put_samples({"B": [Sample(t, float(t)) for t in range(30)]})
         assert (w.buffered, w.dropped) == (50, 11)
         location.parent.unlink()
-        location.parent.mkdir()  # the store comes back
+        # the store comes back (the writer's retry may make the directory itself first)
+        location.parent.mkdir(exist_ok=True)
         wait_until_sync(
             lambda: w.buffered == 0 and w.stored == 49, 10, what="the backlog stored", poll_s=0.05
         )
