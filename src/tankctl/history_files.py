@@ -20,13 +20,7 @@ from typing import Any
 
 from tankctl.ops.errors import UsageError
 from tankctl.ops.history_output import Histories
-
-_BAD = 0x8000_0000
-_SEVERITY = 0xC000_0000
-
-
-def _is_bad(code: int) -> bool:
-    return code & _SEVERITY == _BAD
+from tanklab.history.model import is_bad
 
 
 def _number(value: Any) -> float | None:
@@ -78,10 +72,10 @@ def plot_history(histories: Histories, path: Path, title: str) -> None:
     FigureCanvasAgg(fig)
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
     for ax, (tag, rows) in zip(axes, histories.items(), strict=False):
-        ys = [math.nan if _is_bad(r.status_code) else _number(r.value) for r in rows]
+        ys = [math.nan if is_bad(r.status_code) else _number(r.value) for r in rows]
         ys = [math.nan if y is None else y for y in ys]
         ax.plot([r.time for r in rows], ys, drawstyle="steps-post", linewidth=1.2)
-        bad = [r.time for r in rows if _is_bad(r.status_code)]
+        bad = [r.time for r in rows if is_bad(r.status_code)]
         for t in bad:
             ax.axvline(t, color="tab:red", linewidth=0.6, alpha=0.5)
         ax.set_ylabel(tag, fontsize=8)

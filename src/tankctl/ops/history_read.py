@@ -207,27 +207,27 @@ async def read_event_history(
     details.StartTime, details.EndTime = start, end
     details.NumValuesPerNode = limit
     evfilter = ua.EventFilter()
-    for name in EVENT_FIELDS:
-        op = ua.SimpleAttributeOperand()
-        op.TypeDefinitionId = ua.NodeId(ua.ObjectIds.BaseEventType)
-        op.BrowsePath = [ua.QualifiedName(name, 0)]
-        op.AttributeId = ua.AttributeIds.Value
-        evfilter.SelectClauses.append(op)
+    evfilter.SelectClauses = [_event_field(name) for name in EVENT_FIELDS]
     if min_severity > 0:
-        severity = ua.SimpleAttributeOperand()
-        severity.TypeDefinitionId = ua.NodeId(ua.ObjectIds.BaseEventType)
-        severity.BrowsePath = [ua.QualifiedName("Severity", 0)]
-        severity.AttributeId = ua.AttributeIds.Value
         element = ua.ContentFilterElement()
         element.FilterOperator = ua.FilterOperator.GreaterThanOrEqual
         element.FilterOperands = [
-            severity,
+            _event_field("Severity"),
             ua.LiteralOperand(Value=ua.Variant(min_severity, ua.VariantType.UInt16)),
         ]
         evfilter.WhereClause.Elements.append(element)
     details.Filter = evfilter
     pages = await _pages(client, details, ua.NodeId(ua.ObjectIds.Server), "events")
     return [_event_row([f.Value for f in ev.EventFields]) for page in pages for ev in page.Events or []]
+
+
+def _event_field(name: str) -> ua.SimpleAttributeOperand:
+    """The BaseEventType field ``name`` (namespace 0) as a select or where-clause operand."""
+    op = ua.SimpleAttributeOperand()
+    op.TypeDefinitionId = ua.NodeId(ua.ObjectIds.BaseEventType)
+    op.BrowsePath = [ua.QualifiedName(name, 0)]
+    op.AttributeId = ua.AttributeIds.Value
+    return op
 
 
 def _event_row(fields: Sequence[Any]) -> EventRow:
