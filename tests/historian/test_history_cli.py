@@ -17,10 +17,12 @@ from typing import Any
 
 import pyarrow.parquet as pq
 import pytest
+from asyncua import ua
 
-from helpers import tankctl_at, wait_until
+from helpers import secure, tankctl_at, wait_until
 from historian.store.sqlite import SQLiteStore
 from tanklab import paths
+from tanklab.tags import NAMESPACE_URI
 from tanklab_testing.procs import free_base_port
 from tanklab_testing.sites import site_config
 from tanklab_testing.stack import Stack
@@ -143,3 +145,39 @@ async def test_history_commands_print_what_the_historian_recorded(
             args,
             got.stderr,
         )
+
+
+async def test_an_observer_reads_history_and_nobody_updates_it(stack: tuple[Stack, SQLiteStore]) -> None:
+    """The historian process on its secured endpoint: an Observer's raw read returns exactly what
+    the store holds; a HistoryUpdate is refused for the Observer and for the Engineer (the role
+    that may write everything on the tiers) with a Bad code, and the stored value is unchanged."""
+    s, store = stack
+    await wait_until(
+        lambda: len(store.read_raw(SCAN, 0, 2**62, limit=1_000).samples) >= 10, 60, what="10 scans recorded"
+    )
+    recorded = store.read_raw(SCAN, 0, 2**62, limit=1_000).samples[:10]
+    t0, t9 = recorded[0].t_us, recorded[-1].t_us
+    # Part 11: a raw read's interval is [start, end): the end one microsecond after the tenth
+    start, end = EPOCH + timedelta(microseconds=t0), EPOCH + timedelta(microseconds=t9 + 1)
+
+    async with await secure(s.url("historian"), "observer") as client:
+        node = client.get_node(ua.NodeId(SCAN, await client.get_namespace_index(NAMESPACE_URI)))
+        got = await node.read_raw_history(start, end, return_bounds=False)
+        assert [(v.SourceTimestamp, v.Value.Value, v.StatusCode.value) for v in got] == [
+            (EPOCH + timedelta(microseconds=x.t_us), x.value, x.status) for x in recorded
+        ]
+
+    for user in ("observer", "engineer"):
+        async with await secure(s.url("historian"), user) as client:
+            node = client.get_node(ua.NodeId(SCAN, await client.get_namespace_index(NAMESPACE_URI)))
+            forged = ua.DataValue(ua.Variant(-1.0, ua.VariantType.Double), SourceTimestamp=start)
+            details = ua.UpdateDataDetails(
+                NodeId=node.nodeid, PerformInsertReplace=ua.PerformUpdateType.Replace, UpdateValues=[forged]
+            )
+            with pytest.raises(ua.UaStatusCodeError) as refused:
+                await node.history_update(details)
+            assert refused.value.code in (
+                ua.StatusCodes.BadUserAccessDenied,
+                ua.StatusCodes.BadHistoryOperationUnsupported,
+            ), (user, refused.value)
+    assert store.read_raw(SCAN, t0, t0, limit=10).samples == recorded[:1]
