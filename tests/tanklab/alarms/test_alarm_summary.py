@@ -10,45 +10,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from alarm_definitions import LEVEL, PVBAD, TRIP
 from helpers import ROOT
 from tanklab.alarms.manager import AlarmInput, AlarmManager
 from tanklab.alarms.model import (
-    AlarmDefinition,
     AlarmSummary,
     ConditionCall,
     ConditionEvent,
-    ConditionKind,
     Method,
-    Priority,
     ShelvingState,
 )
 from tanklab.alarms.summary import summary_values
 from tanklab.config import load_site
 from tanklab.tags import ALARM_SUMMARY_ITEMS, DataType, plc_tags, supervisor_tags, tags_by_path
 
-LEVEL = AlarmDefinition(
-    name="T1Level",
-    kind=ConditionKind.EXCLUSIVE_LEVEL,
-    source="src",
-    message="T1 level",
-    priority=Priority.MEDIUM,
-    limits_m=(1.0, 0.8, 0.2, 0.1),
-    limit_priorities=(Priority.URGENT, Priority.MEDIUM, Priority.MEDIUM, Priority.HIGH),
-    deadband_m=0.02,
-    suppress_when_manual="LIC1",
-)
-PVBAD = AlarmDefinition(
-    name="LIC1PvBad", kind=ConditionKind.DISCRETE, source="src", message="LIC1 PV bad", priority=Priority.HIGH
-)
-TRIP = AlarmDefinition(
-    name="T1Trip",
-    kind=ConditionKind.OFF_NORMAL,
-    source="src",
-    message="T1 trip",
-    priority=Priority.URGENT,
-    latched=True,
-    confirm=True,
-)
 NAMES = (LEVEL.name, PVBAD.name, TRIP.name)
 
 
