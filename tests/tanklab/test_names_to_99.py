@@ -39,14 +39,14 @@ def energies() -> dict[str, Any]:
     return data
 
 
-def twelve_tanks() -> dict[str, Any]:
-    """Twelve copies of the Energies T1 loop, each draining to the floor (V{i}0), and T11 joined
-    to T12 by V1112; every tank starts at its setpoint's equilibrium."""
+def site_data(n: int = N) -> dict[str, Any]:
+    """``n`` (default twelve) copies of the Energies T1 loop, each draining to the floor (V{i}0),
+    and T11 joined to T12 by V1112; every tank starts at its setpoint's equilibrium."""
     base = energies()
     tank, pump = base["plant"]["tanks"][0], base["plant"]["pumps"][0]
     loop, interlock = base["plc"]["loops"][0], base["plc"]["interlocks"][0]
     valve = base["plant"]["valves"][0]
-    ids = range(1, N + 1)
+    ids = range(1, n + 1)
     outlet = {"mu": valve["mu"], "area_m2": valve["area_m2"]}
     data = {
         "name": "twelve_tanks",
@@ -77,7 +77,7 @@ def twelve_tanks() -> dict[str, Any]:
 
 def test_a_twelve_tank_site_loads_with_two_digit_names_and_builds_its_address_space(tmp_path: Path) -> None:
     path = tmp_path / "twelve_tanks.yaml"
-    path.write_text(yaml.safe_dump(twelve_tanks()))
+    path.write_text(yaml.safe_dump(site_data()))
     site = load_site(path)
     assert site.tank_names == [f"T{i}" for i in range(1, N + 1)]
     assert [v.name for v in site.plant.valves][-2:] == ["V120", "V1112"]
@@ -90,7 +90,7 @@ def test_a_twelve_tank_site_loads_with_two_digit_names_and_builds_its_address_sp
 
 
 def test_a_twelve_tank_site_runs_in_the_cosimulation_each_loop_on_its_own_tank() -> None:
-    cs = CoSimulation(SiteConfig.model_validate(twelve_tanks()))
+    cs = CoSimulation(SiteConfig.model_validate(site_data()))
     cs.run(60.0)
     # a leak on T12 only: LIC12 (pump P12) must answer it, no other pump
     cs.plant.set_leak("T12", 0.3)
@@ -110,28 +110,46 @@ def _error(data: dict[str, Any], tmp_path: Path) -> str:
     return str(e.value)
 
 
-def test_two_valves_with_one_name_are_refused_naming_both_and_the_rule(tmp_path: Path) -> None:
-    data = twelve_tanks()
-    v = data["plant"]["valves"]
-    # T1 -> T23 is not possible on 12 tanks; T1 -> T12 (V112) and T11 -> T2 (V112) are both V112
-    v.append({"name": "V112", "upstream": "T1", "downstream": "T12", "mu": 0.5, "area_m2": 1e-5})
-    v.append({"name": "V112", "upstream": "T11", "downstream": "T2", "mu": 0.5, "area_m2": 1e-5})
-    msg = _error(data, tmp_path)
-    assert msg == (
-        f"{tmp_path / 'site.yaml'}: plant: valves[14].name: V112 (T11 -> T2) is also valves[13].name "
-        "(T1 -> T12): valve names V{m}{n} must be unique (renumber a tank so they differ)"
+def _joint(up: str, down: str) -> dict[str, Any]:
+    name = f"V{up[1:]}{down[1:]}"
+    return {"name": name, "upstream": up, "downstream": down, "mu": 0.5, "area_m2": 1e-5}
+
+
+@pytest.mark.parametrize(
+    ("tanks", "first", "second", "name"),
+    [(12, ("T1", "T12"), ("T11", "T2"), "V112"), (23, ("T1", "T23"), ("T12", "T3"), "V123")],
+)
+def test_two_valves_with_one_name_are_refused_naming_both_and_the_rule(
+    tanks: int, first: tuple[str, str], second: tuple[str, str], name: str, tmp_path: Path
+) -> None:
+    data = site_data(tanks)
+    valves = data["plant"]["valves"]
+    valves += [_joint(*first), _joint(*second)]
+    j, i = len(valves) - 2, len(valves) - 1
+    assert _error(data, tmp_path) == (
+        f"{tmp_path / 'site.yaml'}: plant: valves[{i}].name: {name} ({second[0]} -> {second[1]}) is also "
+        f"valves[{j}].name ({first[0]} -> {first[1]}): valve names V{{m}}{{n}} must be unique (renumber a "
+        "tank so they differ)"
     )
+    del valves[j]  # either valve alone is fine
+    assert load_site_data(data, tmp_path).plant.valves[-1].name == name
+
+
+def load_site_data(data: dict[str, Any], tmp_path: Path) -> SiteConfig:
+    path = tmp_path / "ok.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return load_site(path)
 
 
 def test_a_valve_name_is_still_derived_from_its_tanks(tmp_path: Path) -> None:
-    data = twelve_tanks()
+    data = site_data()
     data["plant"]["valves"][-1]["name"] = "V1211"
     assert _error(data, tmp_path).endswith("plant.valves[12]: name must be V1112 for a valve from T11 to T12")
 
 
 @pytest.mark.parametrize("name", ["T0", "T100", "T01", "T1a"])
 def test_tank_numbers_outside_1_to_99_are_refused(name: str, tmp_path: Path) -> None:
-    data = twelve_tanks()
+    data = site_data()
     data["plant"]["tanks"][0]["name"] = name
     msg = _error(data, tmp_path)
     assert "plant.tanks[0].name: String should match pattern '^T[1-9][0-9]?$'" in msg
@@ -142,7 +160,7 @@ def test_tank_numbers_outside_1_to_99_are_refused(name: str, tmp_path: Path) -> 
     [("pumps", "name", "P100"), ("pumps", "name", "P0")],
 )
 def test_pump_numbers_outside_1_to_99_are_refused(where: str, field: str, value: str, tmp_path: Path) -> None:
-    data = twelve_tanks()
+    data = site_data()
     data["plant"][where][0][field] = value
     assert f"plant.{where}[0].{field}: String should match pattern" in _error(data, tmp_path)
 
@@ -151,7 +169,7 @@ def test_pump_numbers_outside_1_to_99_are_refused(where: str, field: str, value:
 def test_loop_and_transmitter_numbers_outside_1_to_99_are_refused(
     field: str, value: str, tmp_path: Path
 ) -> None:
-    data = twelve_tanks()
+    data = site_data()
     data["plc"]["loops"][0][field] = value
     assert f"plc.loops[0].{field}: String should match pattern" in _error(data, tmp_path)
 
