@@ -141,6 +141,14 @@ def load_site_data(data: dict[str, Any], tmp_path: Path) -> SiteConfig:
     return load_site(path)
 
 
+def test_one_valve_listed_twice_is_refused_as_a_duplicate(tmp_path: Path) -> None:
+    data = site_data()
+    data["plant"]["valves"].append(dict(data["plant"]["valves"][-1]))  # V1112 again
+    assert _error(data, tmp_path).endswith(
+        "plant: valves[13]: V1112 (T11 -> T12) is listed twice (also valves[12])"
+    )
+
+
 def test_a_valve_name_is_still_derived_from_its_tanks(tmp_path: Path) -> None:
     data = site_data()
     data["plant"]["valves"][-1]["name"] = "V1211"

@@ -256,6 +256,8 @@ class PlantConfig(Model):
             j = seen.setdefault(v.name, i)
             if j != i:
                 w = self.valves[j]
+                if (w.upstream, w.downstream) == (v.upstream, v.downstream):
+                    raise ValueError(f"valves[{i}]: {v.name} ({_ends(v)}) is listed twice (also valves[{j}])")
                 raise ValueError(
                     f"valves[{i}].name: {v.name} ({_ends(v)}) is also valves[{j}].name ({_ends(w)}):"
                     " valve names V{m}{n} must be unique (renumber a tank so they differ)"
