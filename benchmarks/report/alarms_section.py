@@ -45,8 +45,8 @@ def _worst(values: Sequence[float]) -> float:
 
 
 def goals(res: AlarmsResult) -> list[Goal]:
-    """Issue 15's "no regression of the scan" for the flood this site can raise (module
-    :mod:`benchmarks.alarms`: at most 18 conditions in one scan)."""
+    """Issue 15's "no regression of the scan": 50 conditions raised in one scan on the flood site
+    (:mod:`benchmarks.alarms`) and acknowledged by one client, 0 overruns."""
     rounds = ok_rounds(res)
     n = rounds[0].conditions if rounds else 0
     period = res.scan_period_s
@@ -66,16 +66,7 @@ def goals(res: AlarmsResult) -> list[Goal]:
             f"{ms(seconds_at_reference(_worst(scans), res.speed_ms))} ms max at the reference speed",
         )
     )
-    out.append(
-        Goal(
-            f"{ISSUE_ALARMS} alarms raised in one scan",
-            f"{ISSUE_ALARMS}",
-            f"{n} (the most a site config can raise in one scan)",
-            None,
-            f"a site names at most {N_TANKS} tanks (T[1-9]): {2 * N_TANKS} conditions (each tank's level "
-            "alarm and trip) is the largest flood one plant event raises; 50 needs a config change",
-        )
-    )
+    out.append(raised_goal(res))
     want = n * len(res.rounds)
     got_a = sum(r.activation_events for r in rounds)
     got_k = sum(r.ack_events for r in rounds)
@@ -120,6 +111,22 @@ def goals(res: AlarmsResult) -> list[Goal]:
                 )
             )
     return out
+
+
+def raised_goal(res: AlarmsResult) -> Goal:
+    """The issue's flood itself: in every round all :data:`ISSUE_ALARMS` activation events came
+    from one scan (one distinct ``Time``)."""
+    rounds = ok_rounds(res)
+    whole = [r for r in rounds if r.activation_events >= ISSUE_ALARMS and r.activation_times == 1]
+    fewest = min((r.activation_events for r in rounds), default=0)
+    return Goal(
+        f"{ISSUE_ALARMS} alarms raised in one scan",
+        f"{ISSUE_ALARMS} in one scan, every round",
+        f"{fewest} or more in one scan in {len(whole)} / {len(res.rounds)} rounds",
+        len(whole) == len(res.rounds) if res.rounds else None,
+        f"a {N_TANKS}-tank site (names up to 99, decision 0045): each tank's level alarm (HighHigh) "
+        "and its trip, from one common-mode transmitter fault",
+    )
 
 
 def summary_goal(rounds: Sequence[Round]) -> Goal:
@@ -180,18 +187,15 @@ def markdown(res: AlarmsResult) -> str:
         "",
         "`benchmarks.alarms` (`python -m benchmarks.run --only alarms`), issue 15's \"no regression of "
         f"the scan: raising {ISSUE_ALARMS} alarms in one scan and a client acknowledging them all "
-        f'cause 0 overruns at a 1 s scan". **The site config cannot express {ISSUE_ALARMS}**: tanks, '
-        f"pumps and loops are named T[1-9], P[1-9], LIC[1-9], so a PLC has at most {N_TANKS} level "
-        f"alarms, {N_TANKS} PvBad, {N_TANKS} trips, IoFault and SupervisorLost, and no plant event "
-        "makes a PvBad active without failing the field link (and the scan with it). The smallest "
-        f"honest change is the largest flood a site can raise: a generated {N_TANKS}-tank site "
-        f"(`benchmarks.alarms.flood_site`: {N_TANKS} copies of the Energies T1 loop, pump into tank, "
-        "outlet valve to the drain, LIC1's PID and T1's 0.58 m high-high interlock on every tank, "
-        f"at the 0.4 m equilibrium, no supervisor; {res.site_conditions} conditions on its PLC) and "
-        f"one plant event, a common-mode transmitter fault (one Write request setting `Fault = BIAS` "
-        f"on all {N_TANKS} transmitters, `FaultValue` {fmt(BIAS_M)} m written beforehand), which puts "
-        f"every reading above the trip in the same scan: {N_TANKS} level alarms (HighHigh) and "
-        f"{N_TANKS} trips, {n} conditions active at once.",
+        f'cause 0 overruns at a 1 s scan". Tank, pump and loop numbers go to 99 (decision 0045), so '
+        f"the site is a generated {N_TANKS}-tank one (`benchmarks.alarms.flood_site`: {N_TANKS} copies "
+        "of the Energies T1 loop, pump into tank, outlet valve to the drain, LIC1's PID and T1's "
+        "0.58 m high-high interlock on every tank, at the 0.4 m equilibrium, no supervisor; "
+        f"{res.site_conditions} conditions on its PLC), and one plant event, a common-mode "
+        f"transmitter fault (one Write request setting `Fault = BIAS` on all {N_TANKS} transmitters, "
+        f"`FaultValue` {fmt(BIAS_M)} m written beforehand), puts every reading above the trip in "
+        f"the same scan: {N_TANKS} level alarms (HighHigh) and {N_TANKS} trips, {n} conditions "
+        "active at once.",
         "",
         "Real plant and PLC processes on loopback (`tanklab_testing.stack.Stack`, the benchmark's "
         "own security home, every session Basic256Sha256 SignAndEncrypt as the engineer), PLC at "

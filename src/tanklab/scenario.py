@@ -32,6 +32,10 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationError, model_validator
 
 from tanklab.config import (
+    LOOP_NAME,
+    TANK_NAME,
+    TRANSMITTER_NAME,
+    VALVE_NAME,
     ConfigError,
     Finite,
     Fraction,
@@ -53,7 +57,7 @@ class SetpointEvent(_Event):
     """Change a loop's setpoint."""
 
     kind: Literal["setpoint"] = Field(description="Event kind.")
-    loop: str = Field(pattern=r"^LIC[1-9]$", description="Loop, e.g. LIC1.")
+    loop: str = Field(pattern=LOOP_NAME, description="Loop, e.g. LIC1.")
     value_m: NonNegFloat = Field(description="New setpoint [m].")
 
 
@@ -61,7 +65,7 @@ class LeakEvent(_Event):
     """Open or close a tank's leak valve."""
 
     kind: Literal["leak"] = Field(description="Event kind.")
-    tank: str = Field(pattern=r"^T[1-9]$", description="Tank, e.g. T1.")
+    tank: str = Field(pattern=TANK_NAME, description="Tank, e.g. T1.")
     opening: Fraction = Field(description="Leak valve opening 0 (closed) .. 1.")
 
 
@@ -69,7 +73,7 @@ class ValveEvent(_Event):
     """Change a connecting or outlet valve's opening (a clog)."""
 
     kind: Literal["valve"] = Field(description="Event kind.")
-    valve: str = Field(pattern=r"^V[0-9][0-9]$", description="Valve, e.g. V13.")
+    valve: str = Field(pattern=VALVE_NAME, description="Valve, e.g. V13.")
     opening: Fraction = Field(description="Opening 0 (clogged) .. 1.")
 
 
@@ -77,7 +81,7 @@ class FaultEvent(_Event):
     """Inject (or clear, with NONE) a level-transmitter fault."""
 
     kind: Literal["fault"] = Field(description="Event kind.")
-    transmitter: str = Field(pattern=r"^LT[1-9]$", description="Transmitter, e.g. LT1.")
+    transmitter: str = Field(pattern=TRANSMITTER_NAME, description="Transmitter, e.g. LT1.")
     fault: Literal["NONE", "BIAS", "STUCK", "DRIFT"] = Field(description="Fault type.")
     value: Finite = Field(0.0, description="Bias [m] or drift rate [m/s].")
 
@@ -86,7 +90,7 @@ class DisturbanceEvent(_Event):
     """Set an extra inflow (+) or outflow (-) of a tank."""
 
     kind: Literal["disturbance"] = Field(description="Event kind.")
-    tank: str = Field(pattern=r"^T[1-9]$", description="Tank, e.g. T1.")
+    tank: str = Field(pattern=TANK_NAME, description="Tank, e.g. T1.")
     flow_m3_s: Finite = Field(
         description="Disturbance flow [m^3/s]; 0 ends it. At most the plant's largest pump flow in magnitude."
     )
@@ -96,7 +100,7 @@ class LoopModeEvent(_Event):
     """Switch a loop's mode (MANUAL with an output in percent of the MV range)."""
 
     kind: Literal["loop_mode"] = Field(description="Event kind.")
-    loop: str = Field(pattern=r"^LIC[1-9]$", description="Loop, e.g. LIC1.")
+    loop: str = Field(pattern=LOOP_NAME, description="Loop, e.g. LIC1.")
     mode: Literal["MANUAL", "AUTO", "REMOTE"] = Field(description="New mode.")
     mv_percent: Annotated[float, Field(ge=0, le=100)] | None = Field(
         None, description="MANUAL output in percent of the MV range; null keeps the current MV."

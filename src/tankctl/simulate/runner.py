@@ -26,7 +26,7 @@ from tankctl.metrics import (
     step_metrics,
 )
 from tankctl.simulate.results import DisturbanceResult, ScenarioResult, StepResult, VariantResult
-from tanklab.config import ConfigError, SiteConfig, site_from_mapping
+from tanklab.config import ConfigError, SiteConfig, numeric_key, site_from_mapping
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
 from tanklab.scenario import (
     DisturbanceEvent,
@@ -273,7 +273,7 @@ def _evaluate(
         horizon = (end - k) * res.ts_s
         bounds.update(_bounds_at(res, k, group, horizon, band, snapshots, init_flows))
     with_bounds = []
-    for s in sorted(res.steps, key=lambda s: (s.time_s, s.loop)):
+    for s in sorted(res.steps, key=lambda s: (s.time_s, numeric_key(s.loop))):
         b = bounds.get((s.loop, s.time_s))
         with_bounds.append(
             StepResult(

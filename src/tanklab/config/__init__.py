@@ -26,12 +26,14 @@ from tanklab.config.base import (
     LOOP_NAME,
     PUMP_NAME,
     TANK_NAME,
+    TRANSMITTER_NAME,
     VALVE_NAME,
     Finite,
     Fraction,
     Model,
     NonNegFloat,
     PositiveFloat,
+    numeric_key,
 )
 from tanklab.config.historian import HistorianConfig, RetentionConfig
 from tanklab.config.load import (
@@ -84,6 +86,7 @@ __all__ = [
     "LOOP_NAME",
     "PUMP_NAME",
     "TANK_NAME",
+    "TRANSMITTER_NAME",
     "VALVE_NAME",
     "AdaptationSpec",
     "ConfigError",
@@ -120,6 +123,7 @@ __all__ = [
     "default_config_path",
     "format_validation_error",
     "load_site",
+    "numeric_key",
     "parse_endpoint_url",
     "read_yaml",
     "site_from_mapping",

@@ -53,7 +53,7 @@ class SwitchSpec(Model):
 class TankSpec(Model):
     """A cylindrical tank with a leak valve to the drain."""
 
-    name: str = Field(pattern=TANK_NAME, description="Tag name, T1..T9.")
+    name: str = Field(pattern=TANK_NAME, description="Tag name, T1..T99.")
     area_m2: PositiveFloat = Field(description="Cross-section At [m^2].")
     height_max_m: PositiveFloat = Field(description="Overflow height Hmax [m]; above it water spills.")
     initial_level_m: NonNegFloat = Field(0.0, description="Level at start [m].")
@@ -93,7 +93,9 @@ class TankSpec(Model):
 class ValveSpec(Model):
     """An orifice with a valve: between two tanks, or from a tank to the drain ("0").
 
-    Its name is ``V{m}{n}``: from tank m to tank n, n = 0 for the drain (V13, V32, V20).
+    Its name is ``V{m}{n}``: from tank m to tank n, n = 0 for the drain (V13, V32, V20, V1210).
+    Tank numbers go to 99, so a name alone can be ambiguous (V123: T1 -> T23 or T12 -> T3); the
+    plant refuses two valves that get the same name (decision 0045).
     Flow is signed: positive from ``upstream`` to ``downstream``; it reverses with the level order.
     """
 
@@ -122,6 +124,11 @@ class ValveSpec(Model):
         return self.mu * self.area_m2 * math.sqrt(2 * GRAVITY_M_S2)
 
 
+def _ends(v: ValveSpec) -> str:
+    """``T1 -> T23`` or ``T2 -> drain``: a valve's ends, for error messages."""
+    return f"{v.upstream} -> {v.downstream or 'drain'}"
+
+
 class PumpSpec(Model):
     """A pump feeding one tank, commanded in its own unit.
 
@@ -130,7 +137,7 @@ class PumpSpec(Model):
     flow follows that target through ``tau dQ/dt = Q_target - Q``.
     """
 
-    name: str = Field(pattern=PUMP_NAME, description="Tag name, P1..P9.")
+    name: str = Field(pattern=PUMP_NAME, description="Tag name, P1..P99.")
     feeds: str = Field(pattern=TANK_NAME, description="Tank the pump delivers into.")
     command_kind: Literal["flow", "speed", "fraction"] = Field(
         "flow", description="Unit of the command: flow [m^3/s], speed [rpm] or fraction [1]."
@@ -232,14 +239,29 @@ class PlantConfig(Model):
                     raise ValueError(f"valve {v.name} connects unknown tank {end}")
         if len({p.name for p in self.pumps}) != len(self.pumps):
             raise ValueError("pump names must be unique")
-        if len({v.name for v in self.valves}) != len(self.valves):
-            raise ValueError("valve names must be unique")
+        self._valve_names_unique()
         if len(self.operating_point.levels_m) != len(self.tanks):
             raise ValueError("operating_point.levels_m needs one level per tank")
         flows = self.operating_point.flows_m3_s
         if flows is not None and len(flows) != len(self.pumps):
             raise ValueError("operating_point.flows_m3_s needs one flow per pump")
         return self
+
+    def _valve_names_unique(self) -> None:
+        """Refuse two valves with one name. With tank numbers up to 99, ``V{m}{n}`` is ambiguous
+        (T1 -> T23 and T12 -> T3 are both V123; decision 0045), so the error names both valves and
+        their ends: the fix is to renumber a tank."""
+        seen: dict[str, int] = {}
+        for i, v in enumerate(self.valves):
+            j = seen.setdefault(v.name, i)
+            if j != i:
+                w = self.valves[j]
+                if (w.upstream, w.downstream) == (v.upstream, v.downstream):
+                    raise ValueError(f"valves[{i}]: {v.name} ({_ends(v)}) is listed twice (also valves[{j}])")
+                raise ValueError(
+                    f"valves[{i}].name: {v.name} ({_ends(v)}) is also valves[{j}].name ({_ends(w)}):"
+                    " valve names V{m}{n} must be unique (renumber a tank so they differ)"
+                )
 
     @property
     def disturbance_limit_m3_s(self) -> float:

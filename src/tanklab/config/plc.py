@@ -13,6 +13,7 @@ from tanklab.config.base import (
     LOOP_NAME,
     PUMP_NAME,
     TANK_NAME,
+    TRANSMITTER_NAME,
     Finite,
     Fraction,
     Model,
@@ -84,7 +85,7 @@ class LoopSpec(Model):
     """One control loop of the PLC program: which block reads which transmitter, drives which pump."""
 
     name: str = Field(pattern=LOOP_NAME, description="Tag name LIC1..; loop j drives pump j by default.")
-    pv: str = Field(pattern=r"^LT[1-9]$", description="Level transmitter read as PV.")
+    pv: str = Field(pattern=TRANSMITTER_NAME, description="Level transmitter read as PV.")
     actuator: str = Field(pattern=PUMP_NAME, description="Pump the loop commands.")
     block: Literal["pid", "nlpi", "mrac"] = Field("pid", description="Control block.")
     setpoint_m: NonNegFloat = Field(description="Initial setpoint [m].")

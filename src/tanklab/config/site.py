@@ -7,7 +7,7 @@ from typing import Self
 from pydantic import Field, model_validator
 
 from tanklab.alarms import names as alarm_names
-from tanklab.config.base import Model
+from tanklab.config.base import Model, numeric_key
 from tanklab.config.historian import HistorianConfig
 from tanklab.config.plant import PlantConfig
 from tanklab.config.plc import InterlockSpec, PlcConfig
@@ -133,8 +133,8 @@ class SiteConfig(Model):
         plc = self.plc
         levels = {alarm_names.level(t.name): t for t in self.plant.tanks}
         pv_bad = {alarm_names.pv_bad(lp.name) for lp in plc.loops}
-        known = [*levels, *sorted(pv_bad), alarm_names.IO_FAULT, alarm_names.SUPERVISOR_LOST]
-        known += sorted({alarm_names.trip(il.tank) for il in plc.interlocks})
+        known = [*levels, *sorted(pv_bad, key=numeric_key), alarm_names.IO_FAULT, alarm_names.SUPERVISOR_LOST]
+        known += sorted({alarm_names.trip(il.tank) for il in plc.interlocks}, key=numeric_key)
         for name, o in plc.alarms.overrides.items():
             where = f"plc.alarms.overrides.{name}"
             if name not in known:
