@@ -61,7 +61,7 @@ def goals(res: AlarmsResult) -> list[Goal]:
             measured_over,
             None if over is None or not rounds else over == 0 and len(rounds) == len(res.rounds),
             f"{n} conditions raised in one scan and acknowledged by one client per round "
-            f"(section 11); activation scan {ms(statistics.median(scans)) if scans else 'n/a'} ms "
+            f"(section 13); activation scan {ms(statistics.median(scans)) if scans else 'n/a'} ms "
             f"median, {ms(_worst(scans))} ms max as measured, "
             f"{ms(seconds_at_reference(_worst(scans), res.speed_ms))} ms max at the reference speed",
         )
@@ -182,7 +182,7 @@ def markdown(res: AlarmsResult) -> str:
     n = rounds[0].conditions if rounds else 2 * N_TANKS
     period = res.scan_period_s
     lines = [
-        f"## 11. Alarm flood: {n} conditions raised in one scan, one client acknowledging all "
+        f"## 13. Alarm flood: {n} conditions raised in one scan, one client acknowledging all "
         f"({fmt(period)} s scan, speed 1)",
         "",
         "`benchmarks.alarms` (`python -m benchmarks.run --only alarms`), issue 15's \"no regression of "
