@@ -196,7 +196,7 @@ def test_the_flood_goal_needs_all_50_from_one_scan_in_every_round() -> None:
 
 def test_the_section_states_medians_and_maxima_per_acknowledgement_mode() -> None:
     text = markdown(_result())
-    assert text.startswith("## 11. Alarm flood: 50 conditions raised in one scan")
+    assert text.startswith("## 13. Alarm flood: 50 conditions raised in one scan")
     assert "a generated 25-tank one" in text and "77 conditions on its PLC" in text
     rows = [line for line in text.splitlines() if line.startswith(("| one Call |", "| separate Calls |"))]
     # (benchmarks.common.fmt: whole numbers plain, else 3 significant digits)
