@@ -1,5 +1,6 @@
 # syntax=docker/dockerfile:1
-# tanklab: one image for the three tiers (plant, plc, supervisor); the command picks the tier.
+# tanklab: one image for the three tiers and the historian (plant, plc, supervisor, historian);
+# the command picks the tier.
 #
 #   docker build -t tanklab:latest .
 #   docker run --rm -p 4840:4840 tanklab:latest plant          (see docs/docker.md, docker-compose.yml)
@@ -42,8 +43,9 @@ ENV PATH=/opt/venv/bin:$PATH \
     TANKLAB_HOST=0.0.0.0 \
     TANKLAB_HOME=/etc/tanklab \
     TANKLAB_AUDIT_DIR=/var/lib/tanklab/audit
-# uid/gid 10001: outside the range of host accounts; /var/lib/tanklab holds the plant's state
-# file (a volume in docker-compose.yml), the only place the user may write.
+# uid/gid 10001: outside the range of host accounts; /var/lib/tanklab holds a tier's state file
+# or the historian's store (a volume per service in docker-compose.yml), the only place the user
+# may write.
 RUN groupadd --system --gid 10001 tanklab \
  && useradd --system --uid 10001 --gid tanklab --no-create-home --home-dir /app \
         --shell /usr/sbin/nologin tanklab \
@@ -52,6 +54,6 @@ COPY --from=builder /opt/venv /opt/venv
 WORKDIR /app
 COPY configs ./configs
 USER tanklab
-EXPOSE 4840 4841 4842
+EXPOSE 4840 4841 4842 4843
 ENTRYPOINT ["tankctl"]
 CMD ["plant"]

@@ -5,9 +5,10 @@ image and runs the README's Docker steps on a real one (dockerd started by that 
 
 1. ``docker-compose config`` (Debian's docker-compose 1.29, installed by ``make tools``)
    accepts docker-compose.yml, and rejects a broken copy (so the check has teeth);
-2. the compose wiring, parsed: three tiers, their commands, published ports, endpoints by
-   service name, healthchecks that run ``tankctl.health`` against the tier's own port,
-   ``depends_on`` on healthy tiers, restart policies, the control / supervisory networks;
+2. the compose wiring, parsed: three tiers and the historian, their commands, published ports,
+   endpoints by service name, healthchecks that run ``tankctl.health`` against the tier's own
+   port, ``depends_on`` on healthy tiers, restart policies, the control / supervisory networks,
+   the historian's store on its named volume (and TANKLAB_HISTORIAN_URL passed through);
 3. the Dockerfile, parsed: two stages on ``ARG BASE_IMAGE`` (python:3.11-slim), the install done by
    docker/install.sh, only /opt/venv and configs/ in the final stage, no compilers, a
    non-root user, ``ENTRYPOINT ["tankctl"]``;
@@ -38,6 +39,7 @@ import pytest
 import yaml
 
 from helpers import free_port, hang_bound, identity, server_security, wait_until
+from historian.store import store_location
 from tankctl import health
 from tanklab.config import load_site, parse_endpoint_url
 from tanklab.tags import historian_tags, plant_tags, plc_tags, supervisor_tags
@@ -48,8 +50,9 @@ DOCKERFILE = ROOT / "Dockerfile"
 DOCKERIGNORE = ROOT / ".dockerignore"
 INSTALL_SCRIPT = ROOT / "docker" / "install.sh"
 
-TIERS = {"plant": 4840, "plc": 4841, "supervisor": 4842}
-"""Each tier's service name and its OPC UA port (the architecture's defaults)."""
+TIERS = {"plant": 4840, "plc": 4841, "supervisor": 4842, "historian": 4843}
+"""Each tier's service name and its OPC UA port (the architecture's defaults; the historian is
+base + 3, decision 0043)."""
 URL_VARS = {"TANKLAB_PLANT_URL": "plant", "TANKLAB_PLC_URL": "plc", "TANKLAB_SUPERVISOR_URL": "supervisor"}
 COMPILERS = re.compile(
     r"\b(build-essential|gcc|g\+\+|clang|cc|make|cmake|python3?-dev|libc6?-dev|gfortran|cython)\b"
@@ -139,7 +142,7 @@ def _seconds(duration: str) -> float:
     return float(m[1]) * {"ms": 1e-3, "s": 1.0, "m": 60.0}[m[2]]
 
 
-def test_compose_has_the_three_tiers_built_from_one_image() -> None:
+def test_compose_has_the_four_tiers_built_from_one_image() -> None:
     services = _compose()["services"]
     assert set(services) == set(TIERS)
     assert {s["image"] for s in services.values()} == {"tanklab:latest"}
@@ -176,9 +179,15 @@ def test_compose_runs_each_tier_command_on_its_published_port() -> None:
 
 def test_compose_endpoints_name_the_services_and_ports() -> None:
     services = _compose()["services"]
-    wanted = {"plc": "TANKLAB_PLANT_URL", "supervisor": "TANKLAB_PLC_URL"}
-    for name, var in wanted.items():
-        assert var in _env(services[name]), f"{name} needs {var} to reach the tier below"
+    wanted = {
+        "plc": ["TANKLAB_PLANT_URL"],
+        "supervisor": ["TANKLAB_PLC_URL"],
+        # The historian collects from every tier: each by its service name.
+        "historian": ["TANKLAB_PLANT_URL", "TANKLAB_PLC_URL", "TANKLAB_SUPERVISOR_URL"],
+    }
+    for name, names in wanted.items():
+        for var in names:
+            assert var in _env(services[name]), f"{name} needs {var} to reach {URL_VARS[var]}"
     for name, s in services.items():
         for var, value in _env(s).items():
             if var not in URL_VARS:
@@ -203,6 +212,8 @@ def test_compose_networks_follow_the_secured_layout() -> None:
     assert set(_networks(services["plant"])) == {"control"}
     assert set(_networks(services["plc"])) == {"control", "supervisory"}
     assert set(_networks(services["supervisor"])) == {"supervisory"}
+    # The historian reads plant and PLC on `control`, the supervisor on `supervisory`.
+    assert set(_networks(services["historian"])) == {"control", "supervisory"}
     assert set(compose["networks"]) == {"control", "supervisory"}
     for net in compose["networks"].values():
         # An internal network could not publish ports; the CLI on the host needs all three.
@@ -221,13 +232,63 @@ def _mounts(service: dict[str, Any]) -> dict[str, tuple[str, str]]:
 
 def test_compose_mounts_each_tiers_container_home_read_only() -> None:
     services = _compose()["services"]
-    for tier in ("plant", "plc", "supervisor"):
+    for tier in TIERS:
         mounts = _mounts(services[tier])
         secret = {c: hm for c, hm in mounts.items() if c.startswith("/etc/tanklab")}
         # One mount: the tier's copy laid out by `tankctl pki containers` (only its own key,
-        # owned by the image's user; tests/tanklab/test_containers.py checks the layout).
+        # owned by the image's user; tests/tanklab_io/test_containers.py checks the layout).
         assert secret == {"/etc/tanklab": (f"./.tanklab/containers/{tier}", "ro")}, tier
     assert _dockerfile_env(_stages(_instructions())[-1])["TANKLAB_HOME"] == "/etc/tanklab"
+
+
+def _named_volumes(service: dict[str, Any]) -> dict[str, str]:
+    """Container path -> volume name of a service's named volumes (``name:/path``)."""
+    out = {}
+    for vol in service.get("volumes", []):
+        parts = str(vol).split(":")
+        if len(parts) == 2 and not parts[0].startswith((".", "/", "$")):
+            out[parts[1]] = parts[0]
+    return out
+
+
+def test_compose_keeps_each_tiers_state_on_its_own_named_volume() -> None:
+    compose = _compose()
+    services = compose["services"]
+    volumes = {tier: _named_volumes(services[tier]).get("/var/lib/tanklab") for tier in TIERS}
+    assert volumes == {tier: f"{tier}-state" for tier in TIERS}
+    assert set(compose["volumes"]) == set(volumes.values())
+    # The historian's store: a SQLite file on that volume unless TANKLAB_HISTORIAN_URL says
+    # otherwise (the historian reads the variable itself: historian.store.store_location).
+    env = _env(services["historian"])
+    assert env["TANKLAB_HISTORIAN_URL"] == "${TANKLAB_HISTORIAN_URL:-/var/lib/tanklab/history.db}"
+    store = store_location(
+        Path("var/unused.db"), {"TANKLAB_HISTORIAN_URL": _interpolated(env["TANKLAB_HISTORIAN_URL"])}
+    )
+    assert Path(store).parent == Path("/var/lib/tanklab")
+    assert _command(services["historian"]) == ["historian"]  # no --store: it would win over the URL
+
+
+def test_docker_compose_config_passes_the_historians_store_url(tmp_path: Path) -> None:
+    exe = _docker_compose()
+    env = {
+        "PATH": os.environ.get("PATH", "/usr/bin:/bin"),
+        "HOME": str(tmp_path),
+        "TANKLAB_HISTORIAN_URL": "postgresql://tanklab@db:5432/history",
+        "TANKLAB_HISTORIAN_HOST_PORT": "14843",
+    }
+    result = subprocess.run(
+        [exe, "-f", str(COMPOSE), "config"],
+        cwd=COMPOSE.parent,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    historian = yaml.safe_load(result.stdout)["services"]["historian"]
+    assert historian["environment"]["TANKLAB_HISTORIAN_URL"] == "postgresql://tanklab@db:5432/history"
+    assert [(str(p["published"]), p["target"]) for p in historian["ports"]] == [("14843", 4843)]
 
 
 def test_no_secret_can_enter_the_image() -> None:
@@ -243,6 +304,9 @@ def test_compose_starts_each_tier_after_the_tier_below_is_healthy() -> None:
     assert "depends_on" not in services["plant"]
     assert services["plc"]["depends_on"] == {"plant": {"condition": "service_healthy"}}
     assert services["supervisor"]["depends_on"] == {"plc": {"condition": "service_healthy"}}
+    # The historian starts once every tier it collects from answers.
+    healthy = {"condition": "service_healthy"}
+    assert services["historian"]["depends_on"] == dict.fromkeys(("plant", "plc", "supervisor"), healthy)
 
 
 def test_compose_healthchecks_read_the_tier_over_opc_ua() -> None:

@@ -1,4 +1,4 @@
-"""The README's Docker section on a real engine: build, three healthy services, restarts, down.
+"""The README's Docker section on a real engine: build, four healthy services, restarts, down.
 
 What runs, in one test (marker ``docker_engine``; ``pytest -m docker_engine`` selects it):
 
@@ -21,15 +21,20 @@ What runs, in one test (marker ``docker_engine``; ``pytest -m docker_engine`` se
    ``COMPOSE_PROJECT_NAME``, free host ports (``TANKLAB_*_HOST_PORT`` for compose and
    ``TANKLAB_BASE_PORT`` for the CLI), the base image, and ``PIP_CERT`` when pip on this host
    trusts a site CA bundle.
-4. **Checks.** After ``up``: three healthy services. ``setpoint`` and ``leak`` are read back
-   with ``tankctl status --json``. After ``restart plant``: the leak is still there and the
-   plant's model time went on (the state file is on the volume). After ``stop plc``: the
-   plant's pump watchdog trips and its pumps deliver nothing (safe state ``off`` in the
-   config), and the supervisor publishes the lost link (``Supervisor.PlcConnected`` false,
+4. **Checks.** After ``up``: four healthy services (plant, plc, supervisor, historian).
+   ``setpoint`` and ``leak`` are read back with ``tankctl status --json``. After ``tankctl
+   history``: the historian recorded the new setpoint and the leak (Good, through HistoryRead
+   with the host CLI, ``tankctl history --json``) and the PLC's scan counter; the rows up to a
+   fixed time are kept. After ``restart historian``: healthy again, those rows read back exactly
+   (none lost, none duplicated: the SQLite store is on the volume), a BadNoCommunication gap
+   marker after them and Good values recorded after the marker. After ``restart plant``: the
+   leak is still there and the plant's model time went on (the state file is on the volume).
+   After ``stop plc``: the plant's pump watchdog trips and its pumps deliver nothing (safe state
+   ``off`` in the config), and the supervisor publishes the lost link (``Supervisor.PlcConnected`` false,
    ``PlcLink.Attempts`` > 0 and ``LastError`` set). After ``down -v``: no container and no
    volume of the project is left.
 
-The build's seconds, the seconds from the first container's creation to three healthy services
+The build's seconds, the seconds from the first container's creation to four healthy services
 and the image size are printed (``-s``) and
 written to ``~/.cache/tanklab/docker/last-run.json``; docs/docker.md has the numbers.
 """
@@ -50,7 +55,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -68,7 +73,11 @@ MIRROR = "http://deb.debian.org/debian"
 BASE_PACKAGES = ("python3", "python3-venv", "python3-pip", "ca-certificates")
 """What the Dockerfile's stages need from the base: python3 (3.11), its venv module and pip
 (builder), CA certificates (pip over TLS); groupadd and useradd come with minbase (passwd)."""
-TIERS = ("plant", "plc", "supervisor")
+TIERS = ("plant", "plc", "supervisor", "historian")
+"""docker-compose.yml's services (the historian at host port base + 3, as the CLI expects)."""
+HISTORY_TAGS = ("PLC.LIC1.SP", "Plant.T2.Leak", "PLC.Status.Scan")
+"""What the history checks read: the two values the README sets, and a counter that moves every
+scan (so new rows show that recording went on)."""
 
 pytestmark = [pytest.mark.docker_engine, pytest.mark.process, pytest.mark.timeout(1800)]
 
@@ -303,6 +312,8 @@ class ReadmeShell:
     marks: dict[str, float] = field(default_factory=dict)
     steps: dict[str, float] = field(default_factory=dict)
     """Seconds of each README line with its check (for docs/docker.md's numbers)."""
+    history: dict[str, Any] = field(default_factory=dict)
+    """What the history checks keep between README lines (window, rows read before a restart)."""
 
     def sh(self, line: str, timeout: float = 900) -> None:
         """Run one README line with bash; it must exit 0; its exported variables carry over."""
@@ -339,6 +350,24 @@ class ReadmeShell:
         data = json.loads(out.stdout)
         assert isinstance(data, dict)
         return out.returncode, data
+
+    def history_rows(self, tags: tuple[str, ...], start: str, end: str) -> dict[str, list[dict[str, Any]]]:
+        """``tankctl history TAGS --from START --to END --json`` through the historian's
+        published port (``TANKLAB_BASE_PORT`` + 3): tag -> its rows, in the historian's order."""
+        out = subprocess.run(
+            ["tankctl", "history", *tags, "--from", start, "--to", end, "--json"],
+            cwd=self.cwd,
+            env=self.env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        assert out.returncode == 0, f"tankctl history ({out.returncode}): {out.stderr.strip()}"
+        rows: dict[str, list[dict[str, Any]]] = {tag: [] for tag in tags}
+        for row in json.loads(out.stdout):
+            rows[row["tag"]].append(row)
+        return rows
 
     def compose(self, *args: str, check: bool = True) -> str:
         out = subprocess.run(
@@ -383,7 +412,7 @@ async def _after_up(stack: ReadmeShell) -> None:
     await wait_until(
         lambda: stack.health() == dict.fromkeys(TIERS, "healthy"),
         300,
-        what="three healthy services",
+        what="four healthy services",
         poll_s=1.0,
     )
     # `up --build` builds first: the build ends when the first container (the plant) is created.
@@ -406,6 +435,76 @@ async def _after_leak(stack: ReadmeShell) -> None:
     assert code == 0
     assert status["plant"]["tanks"]["T2"]["leak"] == pytest.approx(0.2)
     stack.marks["plant_time_before_restart"] = status["plant"]["model_time_s"]
+
+
+def _iso(wall_s: float) -> str:
+    return datetime.fromtimestamp(wall_s, UTC).isoformat()
+
+
+def _good(rows: list[dict[str, Any]], value: float) -> bool:
+    return any(r["status"] == "Good" and r["value"] == pytest.approx(value) for r in rows)
+
+
+async def _after_history(stack: ReadmeShell) -> None:
+    # From a minute before `up` (the store is new: nothing older), to now.
+    start = _iso(stack.marks["up_started_wall"] - 60.0)
+
+    def recorded() -> bool:
+        rows = stack.history_rows(HISTORY_TAGS, start, "now")
+        return (
+            _good(rows["PLC.LIC1.SP"], 0.45)
+            and _good(rows["Plant.T2.Leak"], 0.2)
+            and sum(r["status"] == "Good" for r in rows["PLC.Status.Scan"]) >= 10
+        )
+
+    await wait_until(recorded, 120, what="the historian recording the setpoint and the leak", poll_s=2.0)
+    # The rows up to a fixed end, once two reads agree (what was in flight is stored by then).
+    end = _iso(time.time() - 5.0)
+    last: list[dict[str, list[dict[str, Any]]]] = []
+
+    def settled() -> bool:
+        rows = stack.history_rows(HISTORY_TAGS, start, end)
+        same = bool(last) and rows == last[-1]
+        last.append(rows)
+        return same
+
+    await wait_until(settled, 60, what="the historian's rows up to a fixed time to settle", poll_s=2.0)
+    rows = last[-1]
+    assert _good(rows["PLC.LIC1.SP"], 0.45) and _good(rows["Plant.T2.Leak"], 0.2)
+    for tag, tag_rows in rows.items():
+        times = [r["time"] for r in tag_rows]
+        assert times == sorted(set(times)), f"{tag}: times not strictly increasing"
+    stack.history.update(start=start, end=end, rows=rows)
+
+
+async def _after_restart_historian(stack: ReadmeShell) -> None:
+    await wait_until(
+        lambda: stack.health().get("historian") == "healthy", 180, what="historian healthy again", poll_s=1.0
+    )
+    start, end, before = stack.history["start"], stack.history["end"], stack.history["rows"]
+    # The same window reads back the same rows: nothing lost, nothing duplicated (the volume
+    # kept them). A tag whose newest row was in the window gains the restart's gap marker
+    # (1 us after that row, decision 0043), and nothing else.
+    after = stack.history_rows(HISTORY_TAGS, start, end)
+    for tag in HISTORY_TAGS:
+        added = after[tag][len(before[tag]) :]
+        assert after[tag][: len(before[tag])] == before[tag], f"{tag}: earlier rows changed"
+        assert [r["status"] for r in added] in ([], ["BadNoCommunication"]), f"{tag}: {added}"
+    # The setpoint and the leak did not change: their newest rows were in the window.
+    assert [after[tag][-1]["status"] for tag in ("PLC.LIC1.SP", "Plant.T2.Leak")] == [
+        "BadNoCommunication"
+    ] * 2
+    n_before = len(before["PLC.Status.Scan"])
+    assert n_before >= 10
+
+    def recording_again() -> bool:
+        scan = stack.history_rows(("PLC.Status.Scan",), start, "now")["PLC.Status.Scan"]
+        assert scan[:n_before] == before["PLC.Status.Scan"]
+        gaps = [i for i, r in enumerate(scan) if r["status"] == "BadNoCommunication"]
+        # The restart's gap marker, then Good values recorded by the restarted historian.
+        return bool(gaps) and any(r["status"] == "Good" for r in scan[gaps[-1] + 1 :])
+
+    await wait_until(recording_again, 120, what="the restarted historian recording again", poll_s=2.0)
 
 
 async def _after_restart_plant(stack: ReadmeShell) -> None:
@@ -460,6 +559,8 @@ HOOKS: dict[str, Callable[[ReadmeShell], Any]] = {
     "docker-compose up -d --build": _after_up,
     "tankctl setpoint LIC1 0.45": _after_setpoint,
     "tankctl leak T2 0.2": _after_leak,
+    "tankctl history PLC.LIC1.SP Plant.T2.Leak --from -10m": _after_history,
+    "docker-compose restart historian": _after_restart_historian,
     "docker-compose restart plant": _after_restart_plant,
     "docker-compose stop plc": _after_stop_plc,
     "tankctl browse supervisor": _after_browse_supervisor,
@@ -485,6 +586,7 @@ async def test_readme_docker_section_on_a_real_engine(engine: Engine, tmp_path: 
             "TANKLAB_PLANT_HOST_PORT": str(port),
             "TANKLAB_PLC_HOST_PORT": str(port + 1),
             "TANKLAB_SUPERVISOR_HOST_PORT": str(port + 2),
+            "TANKLAB_HISTORIAN_HOST_PORT": str(port + 3),
             "TANKLAB_BASE_PORT": str(port),
         }
     )
