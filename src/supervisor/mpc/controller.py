@@ -17,6 +17,23 @@ the held path; NaN is never returned.
 ``update_model`` replaces A and B (and optionally the operating point): the formulation rebuilds
 its matrices on the same sparsity pattern and the backend takes the new values.
 
+Where the step's time goes (decision 0027, follow-ups): daqp's update and solve are a fifth of
+it; the rest is numpy's per-call cost on arrays of 2 to 560 numbers. So the usual case does
+little per step:
+
+- the step's data th = [dx0; eta; r; u(-1); u(-1) clipped; 1] is written into one buffer
+  (``_set_step_buffers``) and checked for finite values in one pass; the QP's vectors and daqp's
+  bounds are one product M th (``QpFormulation.set_vector_map``, ``DaqpBackend.set_vector_map``);
+- the projection clips the plan to per-move bounds lo, hi (Np, m): the input box, the first row
+  narrowed to the first move's rate window max(u_min, u_b + du_min) .. min(u_max, u_b + du_max)
+  with u_b = u(-1) clipped to [u_min - du_max, u_max - du_min]; clipping to the box and then to a
+  window inside it is clipping to the window, so this is the box clip followed by the first
+  move's clamp, to the bit; the move-by-move pass runs only from the first move that breaks a
+  rate bound;
+- x(k|k) = x_op + dx0 and z(1..Np) = z_op + z_map [dx0; eta; U - u_op] are evaluated when first
+  read (``PendingPrediction``: the control loop reads neither), as are the plan's SI cost and
+  output-bound violation (``supervisor.mpc.cost``).
+
 The module is pure: no clock, no I/O, no logging.
 """
 

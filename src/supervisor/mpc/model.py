@@ -362,11 +362,12 @@ class MpcResult:
     planned_u : ndarray, shape (Np, m)
         Planned inputs u(0..Np-1) [m^3/s]; ``planned_u[0] == u``.
     predicted_z : ndarray, shape (Np, nz)
-        Controlled outputs z(1..Np) predicted for the plan [m].
+        Controlled outputs z(1..Np) predicted for the plan [m]. Evaluated on first read in a
+        controller's result (:class:`PendingPrediction`), with the model the step was solved on.
     disturbance : ndarray, shape (n_eta,)
         Disturbance estimate used [eta units; m^3/s for Bd = B].
     state : ndarray, shape (n,)
-        State estimate x(k|k) used [m].
+        State estimate x(k|k) used [m] (evaluated on first read, as ``predicted_z``).
     objective : float
         SI cost of the returned plan (all terms, constants included). Evaluated on first read
         (no caller in the control loop reads it), with the model the step was solved on.
