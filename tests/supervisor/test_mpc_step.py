@@ -194,3 +194,93 @@ def test_a_result_made_by_of_step_is_the_dataclass_made_by_its_init() -> None:
         res.u = res.u  # type: ignore[misc]
     with pytest.raises(TypeError, match="exactly the fields"):
         MpcResult.of_step(**{k: v for k, v in values.items() if k != "cost"})
+
+
+def _linear_prediction(ctrl: MpcController, x0: np.ndarray, eta: np.ndarray, plan: np.ndarray) -> np.ndarray:
+    """z(1..Np) of the model simulated sample by sample (the definition of ``predicted_z``)."""
+    model, Bd = ctrl.model, ctrl.disturbance_matrix
+    dx, out = x0 - model.x_op, []
+    for u in plan:
+        dx = model.A @ dx + model.B @ (u - model.u_op) + Bd @ eta
+        out.append(model.Cz @ (model.x_op + dx))
+    return np.array(out)
+
+
+def test_state_and_prediction_read_later_are_those_of_the_solved_model_and_plan() -> None:
+    """``state`` and ``predicted_z`` are evaluated on first read: after the caller reused its
+    arrays, two more steps and a re-linearisation they are still this step's (the oracle: the
+    model simulated sample by sample), read-only and the same array on every read."""
+    ctrl = _controller()
+    x0, r, u_prev, eta = (
+        X_OP + np.array([0.02, -0.01, 0.005]),
+        np.array([0.43, 0.19]),
+        U_OP.copy(),
+        np.zeros(2),
+    )
+    res = ctrl.plan(x0, r, u_prev, eta)
+    expected = _linear_prediction(ctrl, x0, eta, res.planned_u)
+    state = X_OP + (x0 - X_OP)
+    x0[:] = X_OP  # the caller's buffers, reused
+    ctrl.plan(x0, r, u_prev, np.zeros(2))
+    model = ctrl.model
+    ctrl.update_model(model.A * 0.99, model.B * 1.1)
+    ctrl.plan(x0 + 0.01, r, u_prev, np.zeros(2))
+    assert np.array_equal(res.state, state)
+    np.testing.assert_allclose(res.predicted_z, expected, rtol=1e-12, atol=1e-15)
+    assert res.predicted_z is res.predicted_z and res.state is res.state
+    assert not res.predicted_z.flags.writeable and not res.state.flags.writeable
+    assert res.predicted_z.shape == (ctrl.horizon, 2)
+
+
+def test_a_plan_from_float_arrays_is_the_plan_from_lists_bit_for_bit() -> None:
+    """The usual case fills the step buffer in place; the general path checks and converts each
+    input: the same QP data, so the same plan and result, and a step's result keeps its own
+    state when the buffer is refilled by the next step."""
+    fast, slow = _controller(), _controller()
+    inputs = [
+        (X_OP + np.array([0.02, -0.01, 0.005]), np.array([0.43, 0.19]), U_OP.copy(), np.array([1e-6, -2e-6])),
+        (X_OP + np.array([-0.01, 0.02, 0.0]), np.array([0.38, 0.22]), U_OP + 1e-6, np.zeros(2)),
+    ]
+    results = []
+    for x, r, u, eta in inputs:
+        a = fast.plan(x, r, u, eta)
+        b = slow.plan(x.tolist(), r.tolist(), u.tolist(), eta.tolist())
+        for name in ("u", "planned_u", "predicted_z", "state", "disturbance"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert a.objective == b.objective and a.iterations == b.iterations
+        results.append(a)
+    assert np.array_equal(results[0].state, X_OP + (inputs[0][0] - X_OP))
+
+
+def test_a_non_finite_input_on_the_buffered_path_is_named_and_the_next_step_is_unaffected() -> None:
+    ctrl = _controller()
+    x, r, u, eta = X_OP.copy(), np.array([0.4, 0.2]), U_OP.copy(), np.zeros(2)
+    ref = _controller()
+    first, ref_first = ctrl.plan(x, r, u, eta), ref.plan(x, r, u, eta)
+    with pytest.raises(ValueError, match="x"):
+        ctrl.plan(np.array([np.nan, 0.2, 0.3]), r, u, eta)
+    with pytest.raises(ValueError, match="disturbance"):
+        ctrl.plan(x, r, u, np.array([np.inf, 0.0]))
+    with pytest.raises(ValueError, match="u_prev"):
+        ctrl.plan(x, r, np.array([np.nan, 0.0]), eta)
+    x2 = X_OP + np.array([0.01, 0.0, -0.01])
+    after, ref_after = ctrl.plan(x2, r, u, eta), ref.plan(x2, r, u, eta)
+    assert np.array_equal(first.state, ref_first.state)  # the failed steps left the result alone
+    assert np.array_equal(after.planned_u, ref_after.planned_u) and np.array_equal(
+        after.state, ref_after.state
+    )
+    assert after.failures == 0
+
+
+def test_of_step_with_a_pending_prediction_takes_the_other_fields_only() -> None:
+    ctrl = _controller()
+    res = ctrl.step(np.array([0.41, 0.19, 0.3]), np.array([0.41, 0.2]), U_OP.copy())
+    values = {f.name: getattr(res, f.name) for f in dataclasses.fields(MpcResult)}
+    pending = res.__dict__["_pending"]
+    with pytest.raises(TypeError, match="exactly the fields"):
+        MpcResult.of_step(pending, **values)
+    eager = {k: v for k, v in values.items() if k not in ("state", "predicted_z")}
+    lazy = MpcResult.of_step(pending, **eager)
+    assert np.array_equal(lazy.predicted_z, res.predicted_z) and np.array_equal(lazy.state, res.state)
+    with pytest.raises(AttributeError, match="no_such_field"):
+        _ = res.no_such_field  # type: ignore[attr-defined]

@@ -116,6 +116,17 @@ class QpSolution:
     iterations: int
     time_s: float
 
+    @classmethod
+    def of(
+        cls, x: FloatArray | None, accurate: bool, status: str, iterations: int, time_s: float
+    ) -> QpSolution:
+        """The same object as ``QpSolution(x, accurate, ...)``, its dict filled directly (the
+        frozen ``__init__`` sets each field through ``object.__setattr__``: a few times the
+        cost, paid every step; as ``MpcResult.of_step``)."""
+        obj = object.__new__(cls)
+        obj.__dict__.update(x=x, accurate=accurate, status=status, iterations=iterations, time_s=time_s)
+        return obj
+
 
 class QpBackend(Protocol):
     """A QP solver as the controller uses it (module docstring): set up once, solve per step."""
@@ -235,6 +246,7 @@ class DaqpBackend:
         self._soft = soft
         self._model: Any = None
         self._keep = np.zeros(0, dtype=np.int64)
+        self._keep_prefix = True  # the kept variables are 0..nk-1
         self._bu_index = np.zeros(0, dtype=np.int64)
         self._bl_index = np.zeros(0, dtype=np.int64)
         self._soft_pos = np.zeros(0, dtype=np.int64)
@@ -283,6 +295,7 @@ class DaqpBackend:
         self._bl_index = np.concatenate([simple, general])
         self._bu_index = np.concatenate([simple, upper_of[general]])
         self._nk = self._keep.size
+        self._keep_prefix = bool(np.array_equal(self._keep, np.arange(self._nk)))
         sense = np.zeros(self._bl_index.size, dtype=np.int32)
         if soft is not None:
             pos = {int(r): k for k, r in enumerate(general)}
@@ -435,12 +448,13 @@ class DaqpBackend:
     def _solve(self, c: FloatArray, bu: FloatArray, bl: FloatArray) -> QpSolution:
         model = self._model
         model.update(bupper=bu, blower=bl)
-        w, _, flag, info = model.solve()
-        status = DAQP_STATUS.get(int(flag), f"exit flag {int(flag)}")
+        w, _, exit_flag, info = model.solve()
+        flag = int(exit_flag)
+        status = DAQP_STATUS.get(flag) or f"exit flag {flag}"
         iterations, time_s = int(info["iterations"]), float(info["solve_time"])
         if flag > 0 and w.shape == (self._nk,) and np.isfinite(w).all():
-            x = self._primal(w, c, bu, bl, int(flag) == _DAQP_SOFT_OPTIMAL)
-            return QpSolution(x=x, accurate=True, status=status, iterations=iterations, time_s=time_s)
+            x = self._primal(w, c, bu, bl, flag == _DAQP_SOFT_OPTIMAL)
+            return QpSolution.of(x, True, status, iterations, time_s)
         self.reset()  # a failed solve's working set is no start for the next one
         return QpSolution(x=None, accurate=False, status=status, iterations=iterations, time_s=time_s)
 
@@ -456,7 +470,10 @@ class DaqpBackend:
             x += c
             return x
         x = np.zeros(self._nv)
-        x[self._keep] = w + c
+        if self._keep_prefix:  # the slacks last (the formulation's layout): one add into x
+            np.add(w, c, out=x[: self._nk])
+        else:
+            x[self._keep] = w + c
         if violated:
             pos = self._soft_pos
             row = self._A_soft @ w

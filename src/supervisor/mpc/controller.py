@@ -17,6 +17,23 @@ the held path; NaN is never returned.
 ``update_model`` replaces A and B (and optionally the operating point): the formulation rebuilds
 its matrices on the same sparsity pattern and the backend takes the new values.
 
+Where the step's time goes (decision 0027, follow-ups): daqp's update and solve are a fifth of
+it; the rest is numpy's per-call cost on arrays of 2 to 560 numbers. So the usual case does
+little per step:
+
+- the step's data th = [dx0; eta; r; u(-1); u(-1) clipped; 1] is written into one buffer
+  (``_set_step_buffers``) and checked for finite values in one pass; the QP's vectors and daqp's
+  bounds are one product M th (``QpFormulation.set_vector_map``, ``DaqpBackend.set_vector_map``);
+- the projection clips the plan to per-move bounds lo, hi (Np, m): the input box, the first row
+  narrowed to the first move's rate window max(u_min, u_b + du_min) .. min(u_max, u_b + du_max)
+  with u_b = u(-1) clipped to [u_min - du_max, u_max - du_min]; clipping to the box and then to a
+  window inside it is clipping to the window, so this is the box clip followed by the first
+  move's clamp, to the bit; the move-by-move pass runs only from the first move that breaks a
+  rate bound;
+- x(k|k) = x_op + dx0 and z(1..Np) = z_op + z_map [dx0; eta; U - u_op] are evaluated when first
+  read (``PendingPrediction``: the control loop reads neither), as are the plan's SI cost and
+  output-bound violation (``supervisor.mpc.cost``).
+
 The module is pure: no clock, no I/O, no logging.
 """
 
@@ -36,6 +53,7 @@ from supervisor.mpc.model import (
     MpcConfig,
     MpcModel,
     MpcResult,
+    PendingPrediction,
     SolvedBy,
     as_float,
     matrix,
@@ -124,7 +142,23 @@ class MpcController:
         self._backend.setup(P, Aqp, q, lo, up)
         self._backend.set_vector_map(qp.vector_map)
         self._set_correct_map()
+        self._set_step_buffers()
+        # the bounds of each move for the projection (Np, m) [m^3/s]: the input box, the first
+        # row narrowed to the first move's rate window every step (:meth:`_project`)
+        self._move_lo = np.tile(self._qp.u_min, (self._N, 1))
+        self._move_hi = np.tile(self._qp.u_max, (self._N, 1))
         self._reset_runtime_state()
+
+    def _set_step_buffers(self) -> None:
+        """The step's data th = [dx0; eta; r; u(-1); u(-1) clipped; 1] (``QpFormulation.step_data``)
+        as one buffer filled in place by :meth:`plan`'s usual case, with a view per block: the
+        inputs are written once and checked for finite values in one pass over th."""
+        n, ne, nz, m = self._n, self._n_eta, self._nz, self._m
+        th = np.empty(n + ne + nz + 2 * m + 1)
+        th[-1] = 1.0
+        cut = np.cumsum([n, ne, nz, m, m])
+        self._th = th
+        self._th_dx, self._th_eta, self._th_r, self._th_u, self._th_ub, _ = np.split(th, cut)
 
     def _reset_runtime_state(self) -> None:
         self._plan: FloatArray | None = None
@@ -216,7 +250,7 @@ class MpcController:
         disturbance : array_like, shape (n_eta,), optional
             Disturbance held over the horizon; default zeros.
         """
-        if (  # the usual case, four float vectors of the right shapes: one finite check
+        if (  # the usual case, four float vectors of the right shapes: written into th at once
             type(x) is np.ndarray
             and type(r) is np.ndarray
             and type(u_prev) is np.ndarray
@@ -226,9 +260,14 @@ class MpcController:
             and r.shape == (self._nz,)
             and u_prev.shape == (self._m,)
             and disturbance.shape == (self._n_eta,)
-            and np.isfinite(np.concatenate((x, r, u_prev, disturbance))).all()
         ):
-            return self._solve(x - self._model.x_op, disturbance, r, u_prev)
+            dx0 = np.subtract(x, self._model.x_op, out=self._th_dx)
+            self._th_eta[:] = disturbance
+            self._th_r[:] = r
+            self._th_u[:] = u_prev
+            # x - x_op is finite iff x is (x_op is): one check of th covers the four inputs
+            if np.isfinite(self._th).all():
+                return self._solve_th(dx0, disturbance, r, u_prev)
         if disturbance is None:
             d_ = np.zeros(self._n_eta)
         elif (
@@ -324,6 +363,13 @@ class MpcController:
             raise ValueError("r must be finite")
         return arr
 
+    def _solve_th(self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray) -> MpcResult:
+        """:meth:`_solve` for a constant reference with dx0, eta, r and u(-1) already in the step
+        buffer th (:meth:`_set_step_buffers`; ``dx0`` is its view): only u(-1) clipped is added."""
+        u_base = self._qp.rate_window_base(u_prev.tolist())
+        self._th_ub[:] = u_base
+        return self._finish(self._backend.solve_data(self._th), dx0, eta, r, u_prev, u_base)
+
     def _solve(self, dx0: FloatArray, eta: FloatArray, r: FloatArray, u_prev: FloatArray) -> MpcResult:
         """The step from the state estimate, disturbance, reference ((nz,) or (Np, nz)) and u(-1)."""
         qp = self._qp
@@ -340,6 +386,21 @@ class MpcController:
             sol = backend.solve_data(qp.step_data(dx0, eta, r[0], u_prev, u_base))
         else:
             sol = backend.solve(*qp.qp_vectors(dx0, eta, r, u_prev))
+        return self._finish(sol, dx0, eta, r, u_prev, u_base)
+
+    def _finish(
+        self,
+        sol: QpSolution,
+        dx0: FloatArray,
+        eta: FloatArray,
+        r: FloatArray,
+        u_prev: FloatArray,
+        u_base: list[float],
+    ) -> MpcResult:
+        """Status, held path, projection, prediction and result of a solve (``dx0`` is only read
+        here: it may be a view of the step buffer)."""
+        qp = self._qp
+        backend = self._backend
         solved_by: SolvedBy = backend.name
         if sol.x is not None and np.isfinite(sol.x).all():
             plan = qp.plan_of(sol.x)
@@ -360,13 +421,11 @@ class MpcController:
         plan = self._project(plan, u_base)
         if status != MpcStatus.HELD or self._plan is not None:
             self._plan = plan  # the last safe plan (a held u(-1) is not one)
-        z_pred = qp.predict_z(dx0, eta, plan)
-        return self._make_result(plan, z_pred, status, sol, solved_by, dx0, eta, r, u_prev)
+        return self._make_result(plan, status, sol, solved_by, dx0, eta, r, u_prev)
 
     def _make_result(
         self,
         plan: FloatArray,
-        z_pred: FloatArray,
         status: MpcStatus,
         sol: QpSolution,
         solved_by: SolvedBy,
@@ -375,20 +434,21 @@ class MpcController:
         r: FloatArray,
         u_prev: FloatArray,
     ) -> MpcResult:
-        """The step's result. ``plan`` (also kept as the last plan), ``z_pred`` and ``eta`` are
-        this step's own arrays, handed out read-only; r and u(-1) are the caller's, so copied
-        (the cost is evaluated from them when first read)."""
+        """The step's result. ``plan`` (also kept as the last plan) and ``eta`` are this step's
+        own arrays, handed out read-only; dx0 (perhaps the step buffer's view), r and u(-1) are
+        the caller's, so copied. The state, the prediction (:class:`PendingPrediction`) and the
+        cost are evaluated from them when first read."""
         planned = readonly(plan)
+        qp, model = self._qp, self._model
         return MpcResult.of_step(
+            PendingPrediction(model.x_op, model.u_op, qp.z_map, qp.z_op_N, dx0.copy(), eta, planned),
             u=planned[0],
             status=status,
             osqp_status=sol.status,
             iterations=sol.iterations,
             solve_time_s=sol.time_s,
             planned_u=planned,
-            predicted_z=readonly(z_pred),
             disturbance=readonly(eta),
-            state=readonly(self._model.x_op + dx0),
             failures=self._failures,
             consecutive_failures=self._consecutive,
             inaccurate=self._inaccurate,
@@ -413,10 +473,14 @@ class MpcController:
     def _project(self, plan: FloatArray, u_base: list[float]) -> FloatArray:
         """:meth:`project` with u(-1) already clipped to its window (``QpFormulation.rate_window_base``)."""
         qp = self._qp
-        out = np.minimum(np.maximum(plan, qp.u_min), qp.u_max)  # np.clip's result, less call overhead
+        lo, hi = self._move_lo, self._move_hi
+        if qp.has_rate_rows and self._config.first_move_rate_limited:
+            # the first move's rate window within the box (the same numbers as _clamp_move's):
+            # clipping to the box and then to a window inside it is clipping to the window
+            lo[0] = [max(a, b + d) for a, b, d in zip(qp.u_min_list, u_base, qp.du_min_list, strict=True)]
+            hi[0] = [min(a, b + d) for a, b, d in zip(qp.u_max_list, u_base, qp.du_max_list, strict=True)]
+        out = np.minimum(np.maximum(plan, lo), hi)  # np.clip's result, less call overhead
         if qp.has_rate_rows:
-            if self._config.first_move_rate_limited:
-                out[0] = self._clamp_move(out[0].tolist(), u_base)
             first = self._first_broken(out)
             if first:
                 out = self._project_moves(out, first)
@@ -428,7 +492,7 @@ class MpcController:
         qp = self._qp
         d = plan[1:] - plan[:-1]
         if qp.symmetric_rates:  # |d| <= du_max is d >= du_min and d <= du_max, exactly
-            broken = np.abs(d) > qp.du_max
+            broken = np.abs(d, out=d) > qp.du_max
         else:
             broken = (d < qp.du_min) | (d > qp.du_max)
         flat = broken.reshape(-1)  # row-major: the first True is in the first broken move

@@ -102,6 +102,7 @@ from supervisor.mpc.model import (
     FloatArray,
     MpcConfig,
     MpcModel,
+    PendingPrediction,
     sqrt_psd,
     vector,
     weight,
@@ -623,7 +624,9 @@ class QpFormulation:
     def plan_of(self, v: FloatArray) -> FloatArray:
         """The absolute plan u(0..Np-1) [m^3/s], (Np, m), of a solution v of the scaled QP."""
         u_t = v[self.u_off : self.u_off + self.N * self.m].reshape(self.N, self.m)
-        return self.model.u_op + u_t * self.su
+        plan = u_t * self.su
+        plan += self.model.u_op  # u_op + u~ s_u (one array: addition commutes exactly)
+        return plan
 
     def set_prediction_map(self) -> None:
         """The map of :meth:`predict_z` in SI units: z(1..Np) stacked = z_op (tiled) + Dz_N (Zx dx0
@@ -638,11 +641,10 @@ class QpFormulation:
 
     def predict_z(self, dx0: FloatArray, eta: FloatArray, plan: FloatArray) -> FloatArray:
         """z(1..Np) [m] of the linear model for the plan (exact prediction, any formulation; one
-        product, :meth:`set_prediction_map`)."""
-        zin = np.concatenate((dx0, eta, (plan - self.model.u_op).reshape(-1)))
-        z = self.z_map @ zin
-        z += self.z_op_N
-        return z.reshape(self.N, self.nz)
+        product, :meth:`set_prediction_map`; what a result's ``predicted_z`` evaluates)."""
+        return PendingPrediction(
+            self.model.x_op, self.model.u_op, self.z_map, self.z_op_N, dx0, eta, plan
+        ).predicted_z()
 
     def scaled_z(self, dx0: FloatArray, eta: FloatArray, u_t: FloatArray) -> FloatArray:
         """z~(1..Np) stacked, of dx0 [m], eta and U~ (vectors, or matrices column by column)."""

@@ -302,6 +302,45 @@ class MpcConfig:
             raise ValueError(f"tolerances must be strictly decreasing, got {tol}")
 
 
+class PendingPrediction:
+    """What a step's ``state`` and ``predicted_z`` are evaluated from when first read (the control
+    loop reads neither, so the step does not pay for them; :meth:`MpcResult.of_step`)::
+
+        state       = x_op + dx0                                         (n,)      [m]
+        predicted_z = z_op_N + z_map [dx0; eta; vec(U - u_op)]  as (Np, nz)          [m]
+
+    with the solved model's arrays (``QpFormulation.set_prediction_map``; a later
+    re-linearisation makes new ones), this step's own copy of dx0 and its eta and plan (read-only
+    arrays of the result). The same floating-point operations as evaluating them in the step.
+    """
+
+    __slots__ = ("dx0", "eta", "plan", "u_op", "x_op", "z_map", "z_op_N")
+
+    def __init__(
+        self,
+        x_op: FloatArray,
+        u_op: FloatArray,
+        z_map: FloatArray,
+        z_op_N: FloatArray,
+        dx0: FloatArray,
+        eta: FloatArray,
+        plan: FloatArray,
+    ) -> None:
+        self.x_op, self.u_op, self.z_map, self.z_op_N = x_op, u_op, z_map, z_op_N
+        self.dx0, self.eta, self.plan = dx0, eta, plan
+
+    def state(self) -> FloatArray:
+        """x(k|k) = x_op + dx0 [m]."""
+        return self.x_op + self.dx0
+
+    def predicted_z(self) -> FloatArray:
+        """z(1..Np) [m], (Np, nz), of the linear model for the plan (one product)."""
+        zin = np.concatenate((self.dx0, self.eta, (self.plan - self.u_op).reshape(-1)))
+        z = self.z_map @ zin
+        z += self.z_op_N
+        return z.reshape(self.plan.shape[0], -1)
+
+
 @dataclass(frozen=True)
 class MpcResult:
     """Outcome and diagnostics of one MPC step (absolute SI values; arrays read-only).
@@ -323,11 +362,12 @@ class MpcResult:
     planned_u : ndarray, shape (Np, m)
         Planned inputs u(0..Np-1) [m^3/s]; ``planned_u[0] == u``.
     predicted_z : ndarray, shape (Np, nz)
-        Controlled outputs z(1..Np) predicted for the plan [m].
+        Controlled outputs z(1..Np) predicted for the plan [m]. Evaluated on first read in a
+        controller's result (:class:`PendingPrediction`), with the model the step was solved on.
     disturbance : ndarray, shape (n_eta,)
         Disturbance estimate used [eta units; m^3/s for Bd = B].
     state : ndarray, shape (n,)
-        State estimate x(k|k) used [m].
+        State estimate x(k|k) used [m] (evaluated on first read, as ``predicted_z``).
     objective : float
         SI cost of the returned plan (all terms, constants included). Evaluated on first read
         (no caller in the control loop reads it), with the model the step was solved on.
@@ -365,18 +405,35 @@ class MpcResult:
     u_prev: FloatArray | None = field(default=None, repr=False, compare=False)
 
     @classmethod
-    def of_step(cls, **values: Any) -> MpcResult:
+    def of_step(cls, pending: PendingPrediction | None = None, **values: Any) -> MpcResult:
         """The result of a step from every field's value, made by the controller (which has just
         made or checked them): the instance's dict is filled directly. The frozen dataclass's
         ``__init__`` sets each of the 16 fields through ``object.__setattr__``, about 10x the cost
         (12-15 us against 1-2.5 us on the loaded benchmark machine, ~10 % of a whole Np = 40
         step); the result is the same object (equal, frozen, ``objective`` evaluated when read;
-        a test checks it against ``MpcResult(**values)``)."""
-        if values.keys() != _RESULT_FIELDS:
-            raise TypeError(f"MpcResult.of_step needs exactly the fields {sorted(_RESULT_FIELDS)}")
+        a test checks it against ``MpcResult(**values)``).
+
+        With ``pending`` (:class:`PendingPrediction`), ``state`` and ``predicted_z`` are left out
+        of ``values`` and evaluated from it when first read (then kept: the same array on every
+        read, read-only like the others)."""
+        need = _RESULT_FIELDS if pending is None else _EAGER_FIELDS
+        if values.keys() != need:
+            raise TypeError(f"MpcResult.of_step needs exactly the fields {sorted(need)}")
         obj = object.__new__(cls)
         obj.__dict__.update(values)
+        if pending is not None:
+            obj.__dict__["_pending"] = pending
         return obj
+
+    def __getattr__(self, name: str) -> Any:
+        """A lazy field of :meth:`of_step` (called only for names not in the instance's dict)."""
+        pending = self.__dict__.get("_pending")
+        if pending is None or name not in _LAZY_FIELDS:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        value = getattr(pending, name)()
+        value.setflags(write=False)
+        self.__dict__[name] = value
+        return value
 
     @cached_property
     def _cost_and_violation(self) -> tuple[float, float]:
@@ -399,3 +456,6 @@ class MpcResult:
 
 
 _RESULT_FIELDS = frozenset(f.name for f in fields(MpcResult))
+#: the fields :meth:`MpcResult.of_step` can leave to a :class:`PendingPrediction`
+_LAZY_FIELDS = frozenset({"state", "predicted_z"})
+_EAGER_FIELDS = _RESULT_FIELDS - _LAZY_FIELDS
