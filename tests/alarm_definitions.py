@@ -1,4 +1,4 @@
-"""Alarm definitions shared by the alarm manager's and the alarm summary's tests: one exclusive
+"""Alarm definitions shared by the alarm condition, manager and summary tests: one exclusive
 level alarm with a deadband, limit priorities and its PLC.Alarms booleans, one discrete PV-bad
 alarm and one latched interlock trip that asks for confirmation."""
 

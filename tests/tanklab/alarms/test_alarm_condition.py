@@ -8,39 +8,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from alarm_definitions import LEVEL, TRIP
 from tanklab.alarms.condition import Condition, EventIds, ProcessState
 from tanklab.alarms.model import (
     AlarmDefinition,
     CallStatus,
     ConditionCall,
-    ConditionKind,
     LimitState,
     Method,
-    Priority,
     ShelvingState,
 )
 
 HH, H, L, LL = LimitState.HIGH_HIGH, LimitState.HIGH, LimitState.LOW, LimitState.LOW_LOW
 MAX_S = 3600.0
-
-LEVEL = AlarmDefinition(
-    name="T1Level",
-    kind=ConditionKind.EXCLUSIVE_LEVEL,
-    source="src",
-    message="T1 level",
-    priority=Priority.MEDIUM,
-    limits_m=(1.0, 0.8, 0.2, 0.1),
-    limit_priorities=(Priority.URGENT, Priority.MEDIUM, Priority.MEDIUM, Priority.HIGH),
-)
-TRIP = AlarmDefinition(
-    name="T1Trip",
-    kind=ConditionKind.OFF_NORMAL,
-    source="src",
-    message="T1 high-high trip",
-    priority=Priority.URGENT,
-    latched=True,
-    confirm=True,
-)
 
 
 def make(d: AlarmDefinition = LEVEL) -> Condition:
