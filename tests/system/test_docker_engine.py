@@ -335,10 +335,10 @@ class ReadmeShell:
         self.env = dict(item.split("=", 1) for item in env_file.read_text().split("\0") if "=" in item)
         self.ran.append(_command(line))
 
-    def tankctl_json(self, *args: str) -> tuple[int, dict[str, Any]]:
-        """``tankctl ARGS --json`` in the session's environment: exit code and parsed output."""
-        out = subprocess.run(
-            ["tankctl", *args, "--json"],
+    def tankctl(self, *args: str) -> subprocess.CompletedProcess[str]:
+        """The host CLI ``tankctl ARGS`` in the session's environment (120 s: a hang bound)."""
+        return subprocess.run(
+            ["tankctl", *args],
             cwd=self.cwd,
             env=self.env,
             capture_output=True,
@@ -346,6 +346,10 @@ class ReadmeShell:
             timeout=120,
             check=False,
         )
+
+    def tankctl_json(self, *args: str) -> tuple[int, dict[str, Any]]:
+        """``tankctl ARGS --json`` in the session's environment: exit code and parsed output."""
+        out = self.tankctl(*args, "--json")
         assert out.stdout.strip(), f"tankctl {' '.join(args)}: no output ({out.returncode}): {out.stderr}"
         data = json.loads(out.stdout)
         assert isinstance(data, dict)
@@ -354,15 +358,7 @@ class ReadmeShell:
     def history_rows(self, tags: tuple[str, ...], start: str, end: str) -> dict[str, list[dict[str, Any]]]:
         """``tankctl history TAGS --from START --to END --json`` through the historian's
         published port (``TANKLAB_BASE_PORT`` + 3): tag -> its rows, in the historian's order."""
-        out = subprocess.run(
-            ["tankctl", "history", *tags, "--from", start, "--to", end, "--json"],
-            cwd=self.cwd,
-            env=self.env,
-            capture_output=True,
-            text=True,
-            timeout=120,
-            check=False,
-        )
+        out = self.tankctl("history", *tags, "--from", start, "--to", end, "--json")
         assert out.returncode == 0, f"tankctl history ({out.returncode}): {out.stderr.strip()}"
         rows: dict[str, list[dict[str, Any]]] = {tag: [] for tag in tags}
         for row in json.loads(out.stdout):
