@@ -68,7 +68,7 @@ class Relay:
     ) -> None:
         self.urls = dict(urls)
         self.home = home
-        self.dir = run_dir / "relay"
+        self.dir = run_dir.absolute() / "relay"  # the links name it from another directory
         self.path = self.dir / SOCKET_NAME
         self.say = say
         self.sessions: dict[tuple[str | None, str], _Session] = {}

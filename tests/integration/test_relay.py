@@ -125,6 +125,17 @@ async def test_relay_serves_setpoint_status_and_refusals_and_survives_a_plc_rest
             base, {**op_env, "XDG_RUNTIME_DIR": str(tmp_path / "no-relay")}, "setpoint", "LIC1", "99"
         )
         assert (direct.returncode, direct.stdout, direct.stderr) == (r.returncode, r.stdout, r.stderr)
+        # A stale link (a relay that does not answer): the command connects directly.
+        stale = tmp_path / "stale"
+        stale.mkdir(mode=0o700)
+        stale_link = pointer(plc_url, {"XDG_RUNTIME_DIR": str(stale)})
+        assert stale_link is not None
+        stale_link.parent.mkdir(mode=0o700)
+        stale_link.symlink_to(tmp_path / "no-such.sock")
+        r = await command(base, {**op_env, "XDG_RUNTIME_DIR": str(stale)}, "setpoint", "LIC1", "0.42")
+        assert r.returncode == 0 and r.stdout.startswith("PLC.LIC1.SP = 0.42 m (was 0.42 m)"), (
+            r.stdout + r.stderr
+        )
 
         # The PLC restarts (up restarts it); the relay opens its session again.
         old_pid = up.pid("plc")
