@@ -123,7 +123,9 @@ class Relay:
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
-            if _peer_uid(writer) != os.getuid():
+            uid = _peer_uid(writer)
+            if uid != os.getuid():
+                self.say(f"relay: refused a connection of uid {uid} (only uid {os.getuid()} is served)")
                 return  # not the owner: no answer at all
             line = await reader.readline()
             try:

@@ -104,6 +104,11 @@ async def test_relay_serves_setpoint_status_and_refusals_and_survives_a_plc_rest
         assert "asyncua" not in imported(r.stderr)
         assert '"reachable": true' in r.stdout
 
+        # A plant write (leak) goes the same way.
+        r = await command(base, op_env, "leak", "T1", "off", importtime=True)
+        assert r.returncode == 0 and r.stdout.startswith("Plant.T1.Leak = 0"), r.stdout + r.stderr[-2000:]
+        assert "asyncua" not in imported(r.stderr)
+
         # A wrong password: the tier refuses, one line, exit 2 (and nothing is cached).
         bad_env = {**env, "TANKLAB_USER": "operator", "TANKLAB_PASSWORD": "not-the-password"}
         r = await command(base, bad_env, "setpoint", "LIC1", "0.3")

@@ -108,7 +108,8 @@ async def test_relay_answers_no_other_uid_even_when_the_file_modes_would_let_it(
     try:
         os.chmod(run_dir, 0o755)
         url = f"opc.tcp://127.0.0.1:{free_base_port()}/tanklab/plc"
-        relay = Relay({"plc": url}, session_home(), run_dir, lambda line: None)
+        said: list[str] = []
+        relay = Relay({"plc": url}, session_home(), run_dir, said.append)
         await relay.start()
         try:
             os.chmod(relay.dir, 0o755)
@@ -136,6 +137,7 @@ async def test_relay_answers_no_other_uid_even_when_the_file_modes_would_let_it(
             r = await asyncio.to_thread(as_nobody)
             assert r.returncode == 0, r.stderr
             assert r.stdout.strip() in ("b''", "closed"), r.stdout  # connected, no answer
+            assert said == [f"relay: refused a connection of uid 65534 (only uid {os.getuid()} is served)"]
             mine = await ask(relay.path, {"tier": "plc", "url": "x", "op": "read", "paths": []}, 5.0)
             assert mine["error"] == "request", mine  # the owner is answered
         finally:
