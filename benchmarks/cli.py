@@ -5,10 +5,13 @@ Two measurements:
 - **wall time** of ``tankctl setpoint LIC1 SP`` and ``tankctl status`` as an operator runs them
   (the venv's ``tankctl`` console script, a fresh process each time) against a stack that this
   module starts (``tankctl up --clock realtime --no-board`` on free loopback ports, the bench's
-  own security home) and stops. Each run is timed from ``exec`` to exit (``time.perf_counter``
-  around ``subprocess.run``): interpreter start, imports, config, the secure channel (RSA sign
-  and encrypt), the login, one Read (and one Write), the close. Every run must exit 0. The
-  setpoint written is the config's own (``setpoint_m``), so the stack's state does not change.
+  own security home) and stops, each command two ways: through ``up``'s command relay (decision
+  0048: interpreter start, imports without asyncua, config, one or two requests on the relay's
+  Unix socket, which holds the OPC UA session) and on the direct path (a runtime directory
+  without the relay's links: the secure channel with RSA sign and encrypt, the login, one Read
+  and one Write, the close). Each run is timed from ``exec`` to exit (``time.perf_counter``
+  around ``subprocess.run``). Every run must exit 0. The setpoint written is the config's own
+  (``setpoint_m``), so the stack's state does not change.
 - **import time** of the CLI (``python -X importtime``): ``import tankctl.cli`` is what every
   command pays before it parses its arguments; a command's own module is imported when the
   command is used (decision 0039), so ``tankctl.ops.writes`` and ``tankctl.ops.status`` are what
@@ -101,6 +104,8 @@ class CommandTimes:
     name: str
     """The command as the document shows it (``tankctl setpoint LIC1 0.4``)."""
     argv: list[str]
+    env: dict[str, str] = field(default_factory=dict)
+    """What the run's environment adds to :func:`_env` (the runtime directory of the relay links)."""
     samples_s: list[float] = field(default_factory=list)
     cpu_s: list[float] = field(default_factory=list)
     """CPU time (user + system) of each successful run's process [s]: less sensitive to other
@@ -137,10 +142,11 @@ def parse_importtime(text: str) -> list[ImportEntry]:
     return out
 
 
-def _env() -> dict[str, str]:
-    """The environment of a CLI process: no TANKLAB_* of the caller, the bench's home."""
+def _env(extra: dict[str, str] | None = None) -> dict[str, str]:
+    """The environment of a CLI process: no TANKLAB_* of the caller, the bench's home, ``extra``."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("TANKLAB_")}
     env["TANKLAB_HOME"] = str(bench_home())
+    env.update(extra or {})
     return env
 
 
@@ -172,7 +178,9 @@ def tankctl_argv() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "tankctl"]
 
 
-def _run_once(argv: Sequence[str]) -> tuple[float, subprocess.CompletedProcess[str]]:
+def _run_once(
+    argv: Sequence[str], extra: dict[str, str] | None = None
+) -> tuple[float, subprocess.CompletedProcess[str]]:
     t0 = time.perf_counter()
     p = subprocess.run(
         list(argv),
@@ -180,7 +188,7 @@ def _run_once(argv: Sequence[str]) -> tuple[float, subprocess.CompletedProcess[s
         text=True,
         timeout=COMMAND_TIMEOUT_S,
         check=False,
-        env=_env(),
+        env=_env(extra),
         cwd=ROOT,
     )
     return time.perf_counter() - t0, p
@@ -191,14 +199,14 @@ def _children_cpu_s() -> float:
     return t.children_user + t.children_system
 
 
-async def _wait_ready(status: Sequence[str], up: TankctlProcess) -> None:
+async def _wait_ready(status: Sequence[str], up: TankctlProcess, extra: dict[str, str]) -> None:
     """Until ``tankctl status`` exits 0 (the PLC answers), bounded; ``up`` must stay alive."""
     bound = time.monotonic() + READY_TIMEOUT_S
     last = ""
     while time.monotonic() < bound:
         if not up.running:
             raise RuntimeError(f"tankctl up exited before serving (see {up.log_path})")
-        _, p = await asyncio.to_thread(_run_once, status)
+        _, p = await asyncio.to_thread(_run_once, status, extra)
         if p.returncode == 0:
             return
         last = (p.stderr.strip().splitlines() or [""])[-1]
@@ -217,32 +225,43 @@ async def operator_commands(log_dir: Path, repeats: int, log: Callable[[str], No
     run_dir = log_dir / f"cli-{time.time_ns()}"
     base = free_base_port(3)
     where = ["--config", str(ENERGIES), "--base-port", str(base)]
+    # The relay's links live in a runtime directory of this run; the direct rows get an empty one.
+    relayed, direct = run_dir / "runtime", run_dir / "runtime-empty"
+    for d in (relayed, direct):
+        d.mkdir(mode=0o700, parents=True)
+    via_relay = {"XDG_RUNTIME_DIR": str(relayed)}
     up = bench_process(
         "up",
         ["up", *where, "--clock", "realtime", "--speed", "1", "--no-board", "--log-dir", str(run_dir)],
         run_dir / "up.out",
         banner=False,
+        env_extra=via_relay,
     )
     tankctl = tankctl_argv()
+    setpoint = [*tankctl, "setpoint", loop.name, f"{loop.setpoint_m:g}", *where]
+    status = [*tankctl, "status", *where]
     commands = [
+        CommandTimes(f"tankctl setpoint {loop.name} {loop.setpoint_m:g}", setpoint, via_relay),
+        CommandTimes("tankctl status", status, via_relay),
         CommandTimes(
-            f"tankctl setpoint {loop.name} {loop.setpoint_m:g}",
-            [*tankctl, "setpoint", loop.name, f"{loop.setpoint_m:g}", *where],
+            f"tankctl setpoint {loop.name} {loop.setpoint_m:g} (direct)",
+            setpoint,
+            {"XDG_RUNTIME_DIR": str(direct)},
         ),
-        CommandTimes("tankctl status", [*tankctl, "status", *where]),
+        CommandTimes("tankctl status (direct)", status, {"XDG_RUNTIME_DIR": str(direct)}),
     ]
     await up.start()
     try:
-        await _wait_ready(commands[1].argv, up)
+        await _wait_ready(status, up, via_relay)
         for cmd in commands:  # one unmeasured run each: the page cache and .pyc files are warm
-            await asyncio.to_thread(_run_once, cmd.argv)
+            await asyncio.to_thread(_run_once, cmd.argv, cmd.env)
         busy = {id(cmd): [0.0, 0.0] for cmd in commands}  # other core-seconds, wall seconds
         meter = CpuMeter()
         for _ in range(repeats):
             for cmd in commands:
                 meter.start(up.tree())
                 c0 = _children_cpu_s()
-                wall, p = await asyncio.to_thread(_run_once, cmd.argv)
+                wall, p = await asyncio.to_thread(_run_once, cmd.argv, cmd.env)
                 other = meter.stop(up.tree())
                 # CpuMeter counts the CLI process (a reaped child of this one) as other work.
                 cpu = _children_cpu_s() - c0
@@ -295,6 +314,8 @@ def goals(res: CliResults) -> list[Goal]:
     out: list[Goal] = []
     speed = res.speed_reference_ms
     for cmd in res.commands:
+        if cmd.name.endswith("(direct)"):
+            continue  # the fallback path, shown in the table for comparison: not the goal's rows
         s = cmd.summary
         at_ref = seconds_at_reference(s.median, speed)
         note = (
@@ -319,13 +340,16 @@ def markdown(res: CliResults, top: int = 12) -> str:
         "`benchmarks/cli.py`: each command is the venv's `tankctl` script in a fresh process, timed "
         "from start to exit, against a stack started for the section (`tankctl up --clock realtime "
         "--speed 1 --no-board` on free loopback ports, the bench's own security home) and stopped "
-        "after it; every run logs in over Basic256Sha256 SignAndEncrypt and must exit 0. The "
+        "after it. Each command runs two ways: through `up`'s command relay (decision 0048; the "
+        "relay holds the OPC UA session, the command imports no asyncua) and, marked *(direct)*, "
+        "on the direct path (no relay link: every run logs in over Basic256Sha256 SignAndEncrypt). "
+        "Every run must exit 0. The "
         "setpoint written is the config's own, so the stack's state does not change. "
         f"{res.repeats} runs per command, interleaved, after one unmeasured run each; load "
         f"average at the start {res.load_average}; machine speed reference at the start "
         f"{fmt(res.speed_reference_ms)} ms (the Machine section says what it is; lower is faster). "
         "*CPU* is the command's own user + system time; "
-        "the rest of its wall time is waiting: for the servers (the secure channel's RSA, the "
+        "the rest of its wall time is waiting: for the relay or the servers (the secure channel's RSA, the "
         "login's scrypt, the Read and Write) and, on a busy machine, for a core.",
         "",
         "| command | runs | median [s] | p99 [s] | min [s] | max [s] | CPU median [s] | failed "

@@ -18,12 +18,20 @@ from benchmarks.common import bench_home
 from tanklab_testing.procs import TankctlProcess
 
 
-def bench_process(name: str, args: list[str], log_path: Path, *, banner: bool = True) -> TankctlProcess:
-    """``python -m tankctl ARGS`` logging to ``log_path``, in the benchmarks' security home; with
-    ``banner``, :meth:`~TankctlProcess.start` waits (bounded) for the line a tier prints once it
-    serves."""
+def bench_process(
+    name: str,
+    args: list[str],
+    log_path: Path,
+    *,
+    banner: bool = True,
+    env_extra: dict[str, str] | None = None,
+) -> TankctlProcess:
+    """``python -m tankctl ARGS`` logging to ``log_path``, in the benchmarks' security home (and
+    ``env_extra``); with ``banner``, :meth:`~TankctlProcess.start` waits (bounded) for the line a
+    tier prints once it serves."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("TANKLAB_")}
     env["TANKLAB_HOME"] = str(bench_home())
+    env.update(env_extra or {})
     return TankctlProcess(
         *args, name=name, ready="" if banner else None, log=log_path, env=env, reap_children=True
     )

@@ -45,6 +45,7 @@ from rich.console import Console
 from rich.live import Live
 
 from historian.store import URL_ENV
+from tankctl.relay import Relay
 from tankctl.up_board import Board
 from tankctl.up_process import Tier, last_error_line, running_pid
 from tanklab import paths
@@ -528,6 +529,7 @@ async def run_stack(
     code = 0
     why = "exception"
     view: Board | None = None
+    relay: Relay | None = None
     try:
         try:
             started = await stack.start(stop)
@@ -539,7 +541,16 @@ async def run_stack(
             why = f"{cause()} during start-up"
             return code
         pids = ", ".join(f"{t.name} {t.proc.pid}" for t in stack.tiers.values() if t.proc is not None)
+        relay = Relay({t.name: t.url for t in stack.tiers.values()}, stack.home, stack.log_dir, say)
+        try:
+            await relay.start()
+            served = f"command relay: {relay.path}"
+        except OSError as e:  # e.g. a socket path longer than AF_UNIX takes: commands connect directly
+            await relay.stop()
+            relay = None
+            served = f"command relay not started ({e.strerror or e}); operator commands connect directly"
         say(f"started: {stack.site.name}, pids {pids}; Ctrl-C or SIGTERM stops the stack")
+        say(served)
         view = Board(stack)
         show = board and console.is_terminal
         live = Live(view.render([]), console=console, refresh_per_second=2, transient=False) if show else None
@@ -572,6 +583,9 @@ async def run_stack(
     finally:
         live = None
         say(f"stopping ({why})")
+        if relay is not None:  # first: its sessions close while the tiers still answer
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(relay.stop(), 3.0)
         if view is not None:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(view.close(), 2.0)

@@ -13,38 +13,25 @@ Layout (``root`` and every directory in it 0700)::
 
 from __future__ import annotations
 
-import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from tanklab.tags import Role
 from tanklab_io.pki import DEFAULT_HOSTS, Pki, init_pki
-from tanklab_io.users import Credentials, UsersFile, generate_password, write_credentials
+from tanklab_io.users import (
+    ENV_HOME,
+    Credentials,
+    UsersFile,
+    default_home,
+    generate_password,
+    write_credentials,
+)
 
 __all__ = ["ENV_HOME", "FIRST_USER", "SecurityHome", "default_home", "provision"]
 
-ENV_HOME = "TANKLAB_HOME"
-"""Environment variable naming the security home."""
-
 FIRST_USER = "engineer"
 """Name of the Engineer account :func:`provision` creates when the users file has no user."""
-
-
-def default_home(environ: Mapping[str, str] | None = None) -> Path:
-    """``$TANKLAB_HOME``, else ``$XDG_CONFIG_HOME/tanklab``, else ``~/.config/tanklab``.
-
-    Empty variables count as unset, and so does a relative ``XDG_CONFIG_HOME`` (the XDG base
-    directory spec says to ignore it). ``environ`` defaults to ``os.environ``.
-    """
-    env = os.environ if environ is None else environ
-    home = env.get(ENV_HOME)
-    if home:
-        return Path(home).expanduser()
-    xdg = env.get("XDG_CONFIG_HOME")
-    if xdg and Path(xdg).is_absolute():
-        return Path(xdg) / "tanklab"
-    return Path.home() / ".config" / "tanklab"
 
 
 @dataclass(frozen=True)

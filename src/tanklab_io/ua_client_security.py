@@ -39,7 +39,7 @@ from tanklab.tags import APPLICATION_URIS
 from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.pki import Pki
 from tanklab_io.ua_client import ClientSetup
-from tanklab_io.users import ENV_PASSWORD, ENV_USER, Credentials, load_credentials
+from tanklab_io.users import Credentials, cli_login
 
 CLIENT_POLICIES = {
     "Basic256Sha256": SecurityPolicyBasic256Sha256,
@@ -198,17 +198,7 @@ def cli_identity(
     """
     env = os.environ if environ is None else environ
     home = home or SecurityHome(default_home(env))
-    # Half a login in the environment must not fall back to the file's user: the session and the
-    # audit trail would then be someone else's than the operator asked for.
-    user, password = env.get(ENV_USER), env.get(ENV_PASSWORD)
-    if bool(user) != bool(password):
-        given, missing = (ENV_USER, ENV_PASSWORD) if user else (ENV_PASSWORD, ENV_USER)
-        named = f" ({user!r})" if user else ""
-        raise SecurityError(
-            f"{given} is set{named} but {missing} is not: set both, or neither to log in as "
-            f"the user of {home.credentials_file}"
-        )
-    return ClientIdentity(home, "cli", load_credentials(home.credentials_file, env))
+    return ClientIdentity(home, "cli", cli_login(home.credentials_file, env))
 
 
 def client_setup(identity: ClientIdentity) -> ClientSetup:

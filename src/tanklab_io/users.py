@@ -44,6 +44,7 @@ from tanklab.tags import Role
 from tanklab_io.persist import write_bytes_atomic
 
 __all__ = [
+    "ENV_HOME",
     "ENV_PASSWORD",
     "ENV_USER",
     "LOGIN_ROLES",
@@ -52,6 +53,8 @@ __all__ = [
     "Lockout",
     "UserRecord",
     "UsersFile",
+    "cli_login",
+    "default_home",
     "generate_password",
     "hash_password",
     "load_credentials",
@@ -82,6 +85,8 @@ _MAX_KEY_BYTES = 128
 
 ENV_USER = "TANKLAB_USER"
 ENV_PASSWORD = "TANKLAB_PASSWORD"
+ENV_HOME = "TANKLAB_HOME"
+"""Environment variable naming the security home (:mod:`tanklab_io.home`)."""
 
 USERS_FILE_VERSION = 1
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -427,3 +432,45 @@ def load_credentials(path: Path | None, environ: Mapping[str, str]) -> Credentia
     except UnicodeDecodeError:
         raise SecurityError(f"{path}: not UTF-8 text") from None
     return parse_credentials(text, str(path))
+
+
+def default_home(environ: Mapping[str, str] | None = None) -> Path:
+    """``$TANKLAB_HOME``, else ``$XDG_CONFIG_HOME/tanklab``, else ``~/.config/tanklab``.
+
+    Empty variables count as unset, and so does a relative ``XDG_CONFIG_HOME`` (the XDG base
+    directory spec says to ignore it). ``environ`` defaults to ``os.environ``. (Here, not in
+    :mod:`tanklab_io.home`, so that the CLI's relay path finds its login without the PKI's
+    cryptography.)
+    """
+    env = os.environ if environ is None else environ
+    home = env.get(ENV_HOME)
+    if home:
+        return Path(home).expanduser()
+    xdg = env.get("XDG_CONFIG_HOME")
+    if xdg and Path(xdg).is_absolute():
+        return Path(xdg) / "tanklab"
+    return Path.home() / ".config" / "tanklab"
+
+
+def cli_login(credentials_file: Path, environ: Mapping[str, str] | None = None) -> Credentials | None:
+    """The CLI's login: ``TANKLAB_USER`` + ``TANKLAB_PASSWORD``, else ``credentials_file``, else None.
+
+    Raises
+    ------
+    SecurityError
+        Only one of ``TANKLAB_USER`` and ``TANKLAB_PASSWORD`` is set (non-empty): a user name
+        without its password is an error before connecting, never a login as the file's user;
+        or the file is unreadable, too widely readable or malformed (:func:`load_credentials`).
+    """
+    env = os.environ if environ is None else environ
+    # Half a login in the environment must not fall back to the file's user: the session and the
+    # audit trail would then be someone else's than the operator asked for.
+    user, password = env.get(ENV_USER), env.get(ENV_PASSWORD)
+    if bool(user) != bool(password):
+        given, missing = (ENV_USER, ENV_PASSWORD) if user else (ENV_PASSWORD, ENV_USER)
+        named = f" ({user!r})" if user else ""
+        raise SecurityError(
+            f"{given} is set{named} but {missing} is not: set both, or neither to log in as "
+            f"the user of {credentials_file}"
+        )
+    return load_credentials(credentials_file, env)

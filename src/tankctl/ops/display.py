@@ -6,8 +6,6 @@ import math
 import os
 from typing import TYPE_CHECKING, Any
 
-from asyncua import ua
-
 from tanklab.tags import Tag
 
 if TYPE_CHECKING:
@@ -79,6 +77,8 @@ def plain(value: Any) -> Any:
         return value
     if isinstance(value, list | tuple):
         return [plain(v) for v in value]
+    from asyncua import ua  # only an asyncua value gets here (never on the relay path)
+
     if isinstance(value, ua.LocalizedText):
         return value.Text
     if isinstance(value, ua.Range):

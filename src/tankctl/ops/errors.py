@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import socket
-
-from asyncua import ua
+from typing import Any
 
 from tanklab.errors import TanklabError
 
@@ -83,9 +82,22 @@ def describe_failure(e: BaseException, timeout_s: float) -> str:
         return "connection refused"
     if isinstance(e, socket.gaierror):
         return f"unknown host ({e.strerror or e})"
-    if isinstance(e, ua.UaStatusCodeError):
-        return ua.StatusCode(e.code).name
+    ua = _ua_if_loaded()
+    if ua is not None and isinstance(e, ua.UaStatusCodeError):
+        return str(ua.StatusCode(e.code).name)
     if isinstance(e, OSError):
         return str(e.strerror or e) or type(e).__name__
     text = str(e)
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def _ua_if_loaded() -> Any:
+    """asyncua's ``ua`` if something imported asyncua (an exception of its can only come from a
+    process that did); None on the relay path, which never imports it (decision 0048)."""
+    import sys
+
+    if "asyncua" not in sys.modules:
+        return None
+    from asyncua import ua
+
+    return ua

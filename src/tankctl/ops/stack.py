@@ -12,9 +12,8 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tankctl.ops.client import TierClient
 from tankctl.ops.errors import SiteMismatchError, UnreachableError, UsageError
 from tanklab.config import ENV_ENDPOINT_VARS, Endpoints, SiteConfig, load_site, parse_endpoint_url
 from tanklab.identity import SiteIdentity, site_from_json
@@ -28,7 +27,12 @@ from tanklab.tags import (
     supervisor_tags,
     tags_by_path,
 )
-from tanklab_io.ua_client_security import ClientIdentity, cli_identity
+from tanklab_io.users import Credentials, cli_login, default_home
+
+if TYPE_CHECKING:
+    from tankctl.ops.client import TierClient
+    from tankctl.ops.relayed import RelayedClient
+    from tanklab_io.ua_client_security import ClientIdentity
 
 TIERS: tuple[Tier, ...] = ("plant", "plc", "supervisor")
 """The control tiers in port order: ``--base-port N`` puts them at N, N+1, N+2."""
@@ -124,7 +128,11 @@ class Stack:
     _expected: SiteIdentity | None = field(default=None, repr=False)
     _origin: str = field(default="", repr=False)
     _tags: dict[Tier, dict[str, Tag]] = field(default_factory=dict, repr=False)
-    _clients: dict[Tier, TierClient] = field(default_factory=dict, repr=False)
+    login: Credentials | None = None
+    """The CLI's login (user and password) as the relay path sends it (:meth:`use_relay`)."""
+    relay: bool = False
+    """Whether :meth:`client` tries ``tankctl up``'s command relay first (:meth:`use_relay`)."""
+    _clients: dict[Tier, TierClient | RelayedClient] = field(default_factory=dict, repr=False)
     unreached: dict[Tier, UnreachableError] = field(default_factory=dict, repr=False)
     """Why each tier :meth:`resolve` tried did not answer."""
 
@@ -171,7 +179,7 @@ class Stack:
         order = [*prefer, *(t for t in TIERS if t not in prefer)]
         for tier in order:
             try:
-                await self.client(tier).connect()
+                await self.io(tier).connect()
                 return
             except UnreachableError as e:
                 self.unreached[tier] = e
@@ -234,11 +242,46 @@ class Stack:
             self._tags[tier] = tags_by_path(build(self.site))
         return self._tags[tier]
 
-    def client(self, tier: Tier) -> TierClient:
-        """The client of ``tier`` (one per tier; connected by :meth:`TierClient.connect`)."""
+    def use_relay(self) -> None:
+        """Let :meth:`client` go through ``tankctl up``'s command relay where one serves the
+        tier's endpoint (decision 0048), for a command that only reads and writes values."""
+        self.relay = True
+
+    def io(self, tier: Tier) -> TierClient | RelayedClient:
+        """The reading and writing client of ``tier`` (one per tier; connected by its
+        ``connect``): the relay's when :meth:`use_relay` was called and a relay link exists for
+        its endpoint (it falls back to a direct :class:`TierClient` when the relay does not
+        answer), else the direct one."""
         if tier not in self._clients:
-            self._clients[tier] = TierClient(tier, self.urls[tier], self)
+            self._clients[tier] = self._new_client(tier)
         return self._clients[tier]
+
+    def client(self, tier: Tier) -> TierClient:
+        """The direct OPC UA client of ``tier`` (browse, calls, history: more than values);
+        the one :meth:`io` gives when :meth:`use_relay` was not called."""
+        from tankctl.ops.client import TierClient
+
+        client = self.io(tier)
+        if not isinstance(client, TierClient):
+            raise RuntimeError(f"the {tier} client is the relay's: use Stack.io() for it")
+        return client
+
+    def _new_client(self, tier: Tier) -> TierClient | RelayedClient:
+        if self.relay:
+            from tankctl.relay_client import pointer
+
+            link = pointer(self.urls[tier])
+            if link is not None and link.is_symlink():
+                from tankctl.ops.relayed import RelayedClient
+
+                return RelayedClient(tier, self.urls[tier], self, link)
+        return self.direct_client(tier)
+
+    def direct_client(self, tier: Tier) -> TierClient:
+        """A new OPC UA client of ``tier`` (asyncua imported here, on first use)."""
+        from tankctl.ops.client import TierClient
+
+        return TierClient(tier, self.urls[tier], self)
 
     # ---- local checks of names ------------------------------------------------------------
 
@@ -303,4 +346,7 @@ def make_stack(
         base_port=base_port,
         host=host,
     )
-    return Stack(given, urls, timeout, cli_identity(), source)
+    # The login is checked here (half a login in the environment, a too-open credentials
+    # file); the certificate is loaded by a direct client only (the relay path needs none).
+    login = cli_login(default_home() / "credentials")
+    return Stack(given, urls, timeout, None, source, login=login)

@@ -24,7 +24,7 @@ from tanklab.tags import Tier
 async def _read_tier(stack: Stack, tier: Tier) -> dict[str, Any] | UnreachableError:
     """Every contract variable of a tier in one Read (the one that checks its identity, unless
     the client was connected already to learn the site), or why the tier did not answer."""
-    client = stack.client(tier)
+    client = stack.io(tier)
     nodes = [t.path for t in client.tags.values() if t.kind == "variable"]
     try:
         async with client.will_read(nodes):  # with the identity, when not connected yet
@@ -280,6 +280,7 @@ def status(
     stack = options.stack()
 
     async def main() -> int:
+        stack.use_relay()  # reads only: the relay's when ``up`` serves one
         try:
             await stack.resolve("plc", "plant")
         except UnreachableError as e:

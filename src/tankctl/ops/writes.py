@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from tankctl.ops.client import TierClient
 from tankctl.ops.display import with_unit
 from tankctl.ops.errors import UsageError
 from tankctl.ops.options import StackOptions, stack_command
@@ -18,8 +17,12 @@ from tanklab import paths
 from tanklab.enums import LoopMode, SupervisorMode
 from tanklab.tags import Tier
 
+if TYPE_CHECKING:
+    from tankctl.ops.client import TierClient
+    from tankctl.ops.relayed import RelayedClient
 
-async def write_and_tell(client: TierClient, path: str, value: Any, note: str = "") -> str:
+
+async def write_and_tell(client: TierClient | RelayedClient, path: str, value: Any, note: str = "") -> str:
     """Read the old value, write the new one, return ``PATH = NEW unit (was OLD unit)``."""
     tag = client.tags[path]
     old = (await client.read([path]))[path]
@@ -33,10 +36,11 @@ def _write_one(stack: Stack, tier: Tier, path: Callable[[], str], value: Any) ->
     unknown one), write the node of ``tier`` and print ``PATH = NEW (was OLD)``."""
 
     async def main() -> int:
+        stack.use_relay()  # a read and a write: the relay's when ``up`` serves one
         await stack.resolve(tier)
         node = path()
         # The old value is read with the identity (one Read), unless resolve() connected already.
-        async with stack.client(tier).will_read([node]) as client:
+        async with stack.io(tier).will_read([node]) as client:
             typer.echo(await write_and_tell(client, node, value))
         return 0
 
