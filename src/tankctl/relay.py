@@ -32,7 +32,7 @@ from typing import Any
 from asyncua import ua
 
 from tankctl.ops.errors import LOGIN_REFUSALS, describe_failure
-from tankctl.relay_client import MAX_LINE_BYTES, PROTOCOL, pointer
+from tankctl.relay_client import MAX_LINE_BYTES, PROTOCOL, pointer, unix_address
 from tanklab.errors import LinkError
 from tanklab.tags import DataType
 from tanklab_io.home import SecurityHome
@@ -86,7 +86,8 @@ class Relay:
             self.path.unlink()  # a stale socket of a killed up (the pid-file preflight passed)
         old = os.umask(0o177)  # the socket is born 0600: no moment of a wider mode
         try:
-            self._server = await asyncio.start_unix_server(self._serve, str(self.path), limit=MAX_LINE_BYTES)
+            with unix_address(self.path) as address:  # a deep run directory too
+                self._server = await asyncio.start_unix_server(self._serve, address, limit=MAX_LINE_BYTES)
         finally:
             os.umask(old)
         os.chmod(self.path, 0o600)

@@ -20,20 +20,43 @@ cannot serve this request, e.g. another stack's URL; the command then connects d
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-__all__ = ["PROTOCOL", "RelayUnavailableError", "ask", "pointer", "pointer_dir"]
+__all__ = ["PROTOCOL", "RelayUnavailableError", "ask", "pointer", "pointer_dir", "unix_address"]
 
 PROTOCOL = 1
 """The relay protocol's version; a relay answering another version is not used."""
 MAX_LINE_BYTES = 4 * 1024 * 1024
 """Longest request or answer line the relay and the client accept [bytes]."""
+
+
+SUN_PATH_BYTES = 107
+"""Longest socket path ``AF_UNIX`` takes (``sun_path`` is 108 bytes on Linux, NUL included)."""
+
+
+@contextlib.contextmanager
+def unix_address(path: Path) -> Iterator[str]:
+    """An address for binding or connecting to the socket ``path``, however deep it lies.
+
+    ``path`` itself when it fits ``sun_path``; else ``/proc/self/fd/N/<name>``, N a descriptor
+    of its directory held open meanwhile (Linux resolves it to the same directory), so a run
+    directory under a long temp path still gets its relay. Symbolic links are followed either way.
+    """
+    if len(os.fsencode(str(path))) <= SUN_PATH_BYTES:
+        yield str(path)
+        return
+    fd = os.open(path.parent, os.O_PATH | os.O_DIRECTORY)
+    try:
+        yield f"/proc/self/fd/{fd}/{path.name}"
+    finally:
+        os.close(fd)
 
 
 class RelayUnavailableError(Exception):
@@ -75,7 +98,8 @@ async def ask(socket_path: Path, request: dict[str, Any], timeout_s: float) -> d
     line = json.dumps({"v": PROTOCOL, **request}).encode() + b"\n"
     try:
         async with asyncio.timeout(timeout_s):
-            reader, writer = await asyncio.open_unix_connection(str(socket_path), limit=MAX_LINE_BYTES)
+            with unix_address(socket_path) as address:
+                reader, writer = await asyncio.open_unix_connection(address, limit=MAX_LINE_BYTES)
             try:
                 writer.write(line)
                 await writer.drain()

@@ -545,7 +545,7 @@ async def run_stack(
         try:
             await relay.start()
             served = f"command relay: {relay.path}"
-        except OSError as e:  # e.g. a socket path longer than AF_UNIX takes: commands connect directly
+        except OSError as e:  # e.g. the run directory not writable: commands connect directly
             await relay.stop()
             relay = None
             served = f"command relay not started ({e.strerror or e}); operator commands connect directly"

@@ -144,3 +144,34 @@ async def test_relay_answers_no_other_uid_even_when_the_file_modes_would_let_it(
             await relay.stop()
     finally:
         shutil.rmtree(run_dir, ignore_errors=True)
+
+
+async def test_a_relay_deeper_than_sun_path_serves_through_a_deep_link(tmp_path: Path) -> None:
+    # The run directory and the runtime directory both longer than AF_UNIX's 107 bytes (a CI's
+    # xdist temp paths): the relay still binds its socket there and the client reaches it.
+    deep = tmp_path / ("d" * 60) / ("e" * 60)
+    base = free_base_port()
+    urls = {"plc": f"opc.tcp://127.0.0.1:{base + 1}/tanklab/plc"}
+    env = {"XDG_RUNTIME_DIR": str(deep / "rt")}
+    (deep / "rt").mkdir(parents=True, mode=0o700)
+    relay = Relay(urls, session_home(), deep / "run", lambda _: None)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("XDG_RUNTIME_DIR", env["XDG_RUNTIME_DIR"])
+        await relay.start()
+    try:
+        link = pointer(urls["plc"], env)
+        assert link is not None and len(str(link)) > 107 and len(str(relay.path)) > 107
+        assert stat.S_IMODE(relay.path.stat().st_mode) == 0o600
+        req = {
+            "user": "engineer",
+            "password": "x",
+            "tier": "plc",
+            "url": urls["plc"],
+            "op": "read",
+            "paths": [],
+        }
+        down = await ask(link, req, 10.0)
+        assert down == {"v": PROTOCOL, "ok": False, "error": "unreachable", "reason": "connection refused"}
+    finally:
+        await relay.stop()
+    assert not relay.path.exists() and not link.exists()
