@@ -20,7 +20,7 @@ from tankctl.ops.errors import (
     describe_failure,
 )
 from tanklab.errors import LinkError, SecurityError, TanklabError
-from tanklab.tags import NAMESPACE_URI, Tag, Tier, identity_paths
+from tanklab.tags import NAMESPACE_URI, Tag, Tier
 from tanklab_io.ua_client import NAMESPACE_ARRAY, TANKLAB_INDEX, ConnectError, Link
 from tanklab_io.ua_client_security import cli_identity, client_setup
 
@@ -150,13 +150,9 @@ class TierClient:
             await self.link.connect()
         except ConnectError as e:
             raise self._connect_failure(e.stage, e.cause) from None
-        paths = identity_paths(self.tier)
-        if self.stack.resolved:  # the Config text is only needed to learn the site
-            del paths["Config"]
-        identity = list(paths.values())
-        wanted = [p for p in self._wanted if p not in identity]
+        paths, reads = self.stack.first_read(self.tier, self._wanted)
         try:
-            values = await self._first_read(identity + wanted)
+            values = await self._first_read(reads)
             self.stack.accept(self.tier, self.url, {item: values[p] for item, p in paths.items()})
         except TanklabError:
             await self.close()

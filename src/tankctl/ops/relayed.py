@@ -17,7 +17,7 @@ from tankctl.ops.display import show
 from tankctl.ops.errors import LoginRefusedError, RefusedError, UnreachableError
 from tankctl.relay_client import RelayUnavailableError, ask
 from tanklab.errors import TanklabError
-from tanklab.tags import Tag, Tier, identity_paths
+from tanklab.tags import Tag, Tier
 
 if TYPE_CHECKING:
     from tankctl.ops.client import TierClient
@@ -58,13 +58,9 @@ class RelayedClient:
         if self.direct is not None:
             await self.direct.connect()
             return self
-        paths = identity_paths(self.tier)
-        if self.stack.resolved:  # the Config text is only needed to learn the site
-            del paths["Config"]
-        identity = list(paths.values())
-        wanted = [p for p in self._wanted if p not in identity]
+        paths, reads = self.stack.first_read(self.tier, self._wanted)
         try:
-            values = await self._ask({"op": "read", "paths": identity + wanted})
+            values = await self._ask({"op": "read", "paths": reads})
         except RelayUnavailableError:
             self.direct = self.stack.direct_client(self.tier).will_read(self._wanted)
             await self.direct.connect()

@@ -22,6 +22,7 @@ from tanklab.tags import (
     Tag,
     Tier,
     historian_tags,
+    identity_paths,
     plant_tags,
     plc_tags,
     supervisor_tags,
@@ -184,6 +185,16 @@ class Stack:
             except UnreachableError as e:
                 self.unreached[tier] = e
         raise self.unreached[order[0]]
+
+    def first_read(self, tier: Tier, wanted: list[str]) -> tuple[dict[str, str], list[str]]:
+        """What a command's first Read of ``tier`` asks: the identity items :meth:`accept` checks
+        (item -> path; the Config text only while the site is not yet known) and every path to
+        read, the identity's first, then ``wanted``'s not among them."""
+        paths = identity_paths(tier)
+        if self.resolved:
+            del paths["Config"]
+        identity = list(paths.values())
+        return paths, identity + [p for p in wanted if p not in identity]
 
     def accept(self, tier: Tier, url: str, values: Mapping[str, Any]) -> None:
         """Check (or, before the site is known, take) what a tier says it runs.
