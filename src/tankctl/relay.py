@@ -169,9 +169,9 @@ class Relay:
                     dvs = await session.link.read(paths) if paths else []
                     return {"ok": True, "values": {p: _value(dv) for p, dv in zip(paths, dvs, strict=True)}}
                 data_type = DataType(req["type"])
-                value = python_value(data_type, req["value"])
-                status = await _write(session.link, str(req["path"]), stored_variant(data_type, value))
-                return {"ok": True, "status": status}
+                v = stored_variant(data_type, python_value(data_type, req["value"]))
+                (status,) = await session.link.write_variants({str(req["path"]): v})
+                return {"ok": True, "status": str(status.name)}
             except LinkError as e:
                 # The tier went away under the session (a restart): open it again, once.
                 self.sessions.pop((user, tier), None)
@@ -219,20 +219,6 @@ def _connect_reason(e: ConnectError) -> str:
     if e.stage == "namespace" and isinstance(e.cause, ValueError):
         return "no urn:tanklab namespace"
     return describe_failure(e.cause, TIMEOUT_S)
-
-
-async def _write(link: Link, path: str, v: ua.Variant) -> str:
-    """Write one Variant to ``path``; the status code's name (Good or the Bad one)."""
-    if not link.healthy or link.client is None:
-        raise LinkError(f"{link.name} link to {link.url} is down")
-    try:
-        async with asyncio.timeout(link.timeout_s):
-            (status,) = await link.client.uaclient.write_attributes(
-                [link.node(path).nodeid], [ua.DataValue(v)], ua.AttributeIds.Value
-            )
-    except Exception as e:
-        raise await link._fail("write", e) from e
-    return str(status.name)
 
 
 def _value(dv: ua.DataValue) -> Any:

@@ -382,16 +382,21 @@ class Link:
     ) -> list[ua.StatusCode]:
         """Write many values in one Write, each with its tag's exact type (``tags``, default the
         link's own); returns each item's status (no exception for Bad)."""
+        types = self.tags if tags is None else tags
+        return await self.write_variants({p: variant(types[p], v) for p, v in values.items()})
+
+    async def write_variants(self, values: Mapping[str, ua.Variant]) -> list[ua.StatusCode]:
+        """Write many ready-typed Variants in one Write, as :meth:`write`."""
         if not self.healthy or self.client is None:
             raise LinkError(f"{self.name} link to {self.url} is down")
         paths = list(values)
-        types = self.tags if tags is None else tags
-        dvs = [ua.DataValue(variant(types[p], values[p])) for p in paths]
         try:
             async with asyncio.timeout(self.timeout_s):
                 return list(
                     await self.client.uaclient.write_attributes(
-                        [self.node(p).nodeid for p in paths], dvs, ua.AttributeIds.Value
+                        [self.node(p).nodeid for p in paths],
+                        [ua.DataValue(values[p]) for p in paths],
+                        ua.AttributeIds.Value,
                     )
                 )
         except Exception as e:
