@@ -31,6 +31,12 @@ def runtime(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return d
 
 
+def read_request(plc_url: str) -> dict[str, object]:
+    """An empty read of the PLC at ``plc_url`` as the engineer (with a password no tier checks:
+    the tests' endpoints are closed ports)."""
+    return {"user": "engineer", "password": "x", "tier": "plc", "url": plc_url, "op": "read", "paths": []}
+
+
 def test_pointer_names_the_endpoint_in_the_runtime_directory(tmp_path: Path) -> None:
     env = {"XDG_RUNTIME_DIR": str(tmp_path)}
     assert (
@@ -63,14 +69,7 @@ async def test_relay_socket_modes_protocol_checks_and_cleanup(tmp_path: Path, ru
         assert link is not None and Path(os.readlink(link)) == relay.path
         assert stat.S_IMODE(link.parent.stat().st_mode) == 0o700
 
-        req = {
-            "user": "engineer",
-            "password": "x",
-            "tier": "plc",
-            "url": urls["plc"],
-            "op": "read",
-            "paths": [],
-        }
+        req = read_request(urls["plc"])
         other = await ask(link, {**req, "url": "opc.tcp://127.0.0.1:1/tanklab/plc"}, 5.0)
         assert other["ok"] is False and other["error"] == "request", other
         unknown = await ask(link, {**req, "op": "delete"}, 5.0)
@@ -162,14 +161,7 @@ async def test_a_relay_deeper_than_sun_path_serves_through_a_deep_link(tmp_path:
         link = pointer(urls["plc"], env)
         assert link is not None and len(str(link)) > 107 and len(str(relay.path)) > 107
         assert stat.S_IMODE(relay.path.stat().st_mode) == 0o600
-        req = {
-            "user": "engineer",
-            "password": "x",
-            "tier": "plc",
-            "url": urls["plc"],
-            "op": "read",
-            "paths": [],
-        }
+        req = read_request(urls["plc"])
         down = await ask(link, req, 10.0)
         assert down == {"v": PROTOCOL, "ok": False, "error": "unreachable", "reason": "connection refused"}
     finally:
