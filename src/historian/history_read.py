@@ -42,16 +42,17 @@ import dataclasses
 import logging
 import secrets
 from collections import OrderedDict
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from asyncua import Server, ua
+from asyncua.ua.ua_binary import struct_to_binary
 
 from historian.store.base import EventCursor, HistoryStore
-from historian.ua_encode import history_data_extension_object
+from historian.ua_encode import datavalue_bytes, history_data_extension_object
 from tanklab.history.aggregates import AGGREGATES, aggregate, interpolated_value
 from tanklab.history.intervals import intervals
 from tanklab.history.model import EventRecord, Sample, Value
@@ -129,6 +130,23 @@ def _datavalue(s: Sample) -> ua.DataValue:
     return ua.DataValue(
         Value=_variant(s.value), StatusCode=ua.StatusCode(s.status), SourceTimestamp=_dt(s.t_us)
     )
+
+
+def _fit(sizes: Iterable[int], budget: int, *, at_least: int = 1) -> int:
+    """How many leading items of a page to send: the most whose encoded ``sizes`` [bytes], with
+    the list's Int32 length, stay within ``budget``; never fewer than ``at_least`` (a page always
+    makes progress, and a start bound stays with its first value)."""
+    used, count = 4, 0
+    for size in sizes:
+        used += size
+        if used > budget and count >= at_least:
+            break
+        count += 1
+    return count
+
+
+def _event_fields_bytes(fields: ua.HistoryEventFieldList) -> int:
+    return len(struct_to_binary(fields))
 
 
 def _result(status: int, data: Any = None, cp: bytes | None = None) -> ua.HistoryReadResult:
@@ -243,6 +261,12 @@ class HistoryReadService:
     source_for_nodeid: TagMapper | None = None
     """NodeId of an event notifier -> the SourceName it stands for (its events and those below
     it); default :attr:`tag_for_nodeid`. The Server object always reads every event."""
+    max_response_bytes: int = 196_608
+    """Bound of the encoded results of one response, shared equally by its nodes [bytes]: a
+    page stops early (with a continuation point) where the next value or event would pass its
+    node's share. The tiers' servers send at most ``Limits.message_bytes`` (262,140 bytes, four
+    64 KiB chunks) per message; the rest is the response header, the per-node result fields and
+    the chunks' security overhead. A page holds at least one value or event, whatever its size."""
     binary: bool = False
     """Return HistoryData pre-encoded (:mod:`historian.ua_encode`): what a server sends; the
     objects (``False``) are for callers that read the results in Python."""
@@ -265,9 +289,10 @@ class HistoryReadService:
         if ts == ua.TimestampsToReturn.Server:
             return [_result(BAD_TIMESTAMP_NOT_SUPPORTED) for _ in nodes]
         out = []
+        budget = self.max_response_bytes // len(nodes) if nodes else 0
         for i, rv in enumerate(nodes):
             try:
-                out.append(self._read_one(details, rv, i, len(nodes)))
+                out.append(self._read_one(details, rv, i, len(nodes), budget))
             except (_ReadError, HistoryArgumentError) as e:
                 _log.info("HistoryRead of %s: %s (0x%08X)", rv.NodeId, e, e.status)
                 out.append(_result(e.status))
@@ -289,18 +314,19 @@ class HistoryReadService:
     # --- dispatch -----------------------------------------------------------------------
 
     def _read_one(
-        self, details: Any, rv: ua.HistoryReadValueId, index: int, count: int
+        self, details: Any, rv: ua.HistoryReadValueId, index: int, count: int, budget: int
     ) -> ua.HistoryReadResult:
+        """One node's result; ``budget`` bounds its encoded values or events [bytes]."""
         if rv.ContinuationPoint:
-            return self._resume(bytes(rv.ContinuationPoint), rv.NodeId, details)
+            return self._resume(bytes(rv.ContinuationPoint), rv.NodeId, details, budget)
         if isinstance(details, ua.ReadRawModifiedDetails):
-            return self._raw(details, rv.NodeId)
+            return self._raw(details, rv.NodeId, budget)
         if isinstance(details, ua.ReadProcessedDetails):
-            return self._processed(details, rv.NodeId, index, count)
+            return self._processed(details, rv.NodeId, index, count, budget)
         if isinstance(details, ua.ReadAtTimeDetails):
-            return self._at_time(details, rv.NodeId)
+            return self._at_time(details, rv.NodeId, budget)
         if isinstance(details, ua.ReadEventDetails):
-            return self._events(details, rv.NodeId)
+            return self._events(details, rv.NodeId, budget)
         raise _ReadError(BAD_HISTORY_OPERATION_UNSUPPORTED, f"{type(details).__name__} is not supported")
 
     def _tag(self, node: ua.NodeId) -> str:
@@ -316,34 +342,35 @@ class HistoryReadService:
             self._cps.popitem(last=False)
         return token
 
-    def _resume(self, token: bytes, node: ua.NodeId, details: Any) -> ua.HistoryReadResult:
+    def _resume(self, token: bytes, node: ua.NodeId, details: Any, budget: int) -> ua.HistoryReadResult:
         state = self._cps.pop(token, None)
         if state is None or state.node != node:
             raise _ReadError(BAD_CONTINUATION_POINT_INVALID, "unknown continuation point")
         if isinstance(state, _RawState):
             if not isinstance(details, ua.ReadRawModifiedDetails):
                 raise _ReadError(BAD_CONTINUATION_POINT_INVALID, "continuation point of another read")
-            return self._raw_page(state, first=False)
+            return self._raw_page(state, budget, first=False)
         if isinstance(state, _EventState):
             if not isinstance(details, ua.ReadEventDetails):
                 raise _ReadError(BAD_CONTINUATION_POINT_INVALID, "continuation point of another read")
-            return self._event_page(state)
+            return self._event_page(state, budget)
         if isinstance(details, ua.ReadRawModifiedDetails | ua.ReadEventDetails):
             raise _ReadError(BAD_CONTINUATION_POINT_INVALID, "continuation point of another read")
-        return self._list_page(state)
+        return self._list_page(state, budget)
 
     # --- raw ----------------------------------------------------------------------------
 
-    def _raw(self, d: ua.ReadRawModifiedDetails, node: ua.NodeId) -> ua.HistoryReadResult:
+    def _raw(self, d: ua.ReadRawModifiedDetails, node: ua.NodeId, budget: int) -> ua.HistoryReadResult:
         tag = self._tag(node)
         start, end = _us(d.StartTime), _us(d.EndTime)
         plan = plan_raw(start, end, int(d.NumValuesPerNode), bool(d.ReturnBounds))
         if d.IsReadModified:
             return _result(GOOD_NO_DATA, ua.HistoryModifiedData())
         one_time = start is None or end is None
-        return self._raw_page(_RawState(node, tag, plan, plan.limit if one_time else None), first=True)
+        state = _RawState(node, tag, plan, plan.limit if one_time else None)
+        return self._raw_page(state, budget, first=True)
 
-    def _raw_page(self, st: _RawState, *, first: bool) -> ua.HistoryReadResult:
+    def _raw_page(self, st: _RawState, budget: int, *, first: bool) -> ua.HistoryReadResult:
         plan = st.plan
         out: list[Sample] = []
         if first and plan.start_bound:
@@ -354,15 +381,24 @@ class HistoryReadService:
         if st.total is not None:
             page = min(page, st.total - st.returned)
         got = self.store.read_raw(st.tag, plan.start_us, plan.end_us, limit=page, after_us=st.after_us)
-        out += got.samples
-        st.returned += len(got.samples)
-        more = got.cursor is not None and (st.total is None or st.returned < st.total)
-        if more:
+        final = got.cursor is None or (st.total is not None and st.returned + len(got.samples) >= st.total)
+        end: list[Sample] = []
+        if final and plan.end_bound and plan.start_us != plan.end_us:
+            b = self._bound(st.tag, plan.end_us, before=plan.reverse)
+            end.append(b or Sample(plan.end_us, None, BAD_BOUND_NOT_FOUND))
+        # what fits the budget; at least one value or bound beyond a start bound (progress)
+        items = out + got.samples + end
+        keep = _fit(map(datavalue_bytes, items), budget, at_least=len(out) + 1)
+        samples = got.samples[: keep - len(out)]
+        out += samples
+        st.returned += len(samples)
+        if keep < len(items):  # cut short: the rest (and the end bound) on the next page
+            st.after_us = samples[-1].t_us
+            return _result(GOOD, _history_data(out, self.binary), self._keep(st))
+        if not final:
             st.after_us = got.cursor
             return _result(GOOD, _history_data(out, self.binary), self._keep(st))
-        if plan.end_bound and plan.start_us != plan.end_us:
-            b = self._bound(st.tag, plan.end_us, before=plan.reverse)
-            out.append(b or Sample(plan.end_us, None, BAD_BOUND_NOT_FOUND))
+        out += end
         return _result(GOOD if out else GOOD_NO_DATA, _history_data(out, self.binary))
 
     def _bound(self, tag: str, t_us: int, *, before: bool) -> Sample | None:
@@ -406,7 +442,7 @@ class HistoryReadService:
         return sorted([*rows, *extra.values()], key=lambda s: s.t_us)
 
     def _processed(
-        self, d: ua.ReadProcessedDetails, node: ua.NodeId, index: int, count: int
+        self, d: ua.ReadProcessedDetails, node: ua.NodeId, index: int, count: int, budget: int
     ) -> ua.HistoryReadResult:
         tag = self._tag(node)
         types = list(d.AggregateType)
@@ -423,9 +459,9 @@ class HistoryReadService:
             raise _ReadError(BAD_INVALID_ARGUMENT, str(e)) from e
         cfg = self._config(tag, d.AggregateConfiguration)
         samples = self._gather(tag, min(start, end), max(start, end))
-        return self._list_page(_ListState(node, aggregate(name, samples, ivs, cfg)))
+        return self._list_page(_ListState(node, aggregate(name, samples, ivs, cfg)), budget)
 
-    def _at_time(self, d: ua.ReadAtTimeDetails, node: ua.NodeId) -> ua.HistoryReadResult:
+    def _at_time(self, d: ua.ReadAtTimeDetails, node: ua.NodeId, budget: int) -> ua.HistoryReadResult:
         tag = self._tag(node)
         times = [_us(t) for t in d.ReqTimes]
         if any(t is None for t in times):
@@ -437,16 +473,18 @@ class HistoryReadService:
         for t in times:
             assert t is not None
             out.append(interpolated_value(self._gather(tag, t, t), t, cfg))
-        return self._list_page(_ListState(node, out))
+        return self._list_page(_ListState(node, out), budget)
 
-    def _list_page(self, st: _ListState) -> ua.HistoryReadResult:
-        now, st.rest = st.rest[: self.max_values], st.rest[self.max_values :]
+    def _list_page(self, st: _ListState, budget: int) -> ua.HistoryReadResult:
+        head = st.rest[: self.max_values]
+        keep = _fit(map(datavalue_bytes, head), budget)
+        now, st.rest = st.rest[:keep], st.rest[keep:]
         cp = self._keep(st) if st.rest else None
         return _result(GOOD if now else GOOD_NO_DATA, _history_data(now, self.binary), cp)
 
     # --- events -----------------------------------------------------------------------------
 
-    def _events(self, d: ua.ReadEventDetails, node: ua.NodeId) -> ua.HistoryReadResult:
+    def _events(self, d: ua.ReadEventDetails, node: ua.NodeId, budget: int) -> ua.HistoryReadResult:
         if node == ua.NodeId(ua.ObjectIds.Server):
             source = None
         else:
@@ -462,9 +500,9 @@ class HistoryReadService:
         st = _EventState(
             node, plan.start_us, plan.end_us, total, flt.types, flt.min_severity, source, select, plan.limit
         )
-        return self._event_page(st)
+        return self._event_page(st, budget)
 
-    def _event_page(self, st: _EventState) -> ua.HistoryReadResult:
+    def _event_page(self, st: _EventState, budget: int) -> ua.HistoryReadResult:
         limit = self.max_values if st.page is None else min(st.page, self.max_values)
         if st.total is not None:
             limit = min(limit, st.total - st.returned)
@@ -485,12 +523,17 @@ class HistoryReadService:
             cursor = page.cursor
             if cursor is None:
                 break
+        fields = [self._fields(e, st.select) for e in events]
+        keep = _fit(map(_event_fields_bytes, fields), budget)
+        if keep < len(events):
+            events, fields = events[:keep], fields[:keep]
+            cursor = (events[-1].t_us, events[-1].event_id)
         more = cursor is not None
         st.returned += len(events)
         if st.total is not None and st.returned >= st.total:
             more = False
         data = ua.HistoryEvent()
-        data.Events = [self._fields(e, st.select) for e in events]
+        data.Events = fields
         if more:
             st.after = cursor
             return _result(GOOD, data, self._keep(st))

@@ -25,7 +25,7 @@ from asyncua import ua
 
 from tanklab.history.model import EPOCH_OFFSET_TICKS, Sample
 
-__all__ = ["HISTORY_DATA_BINARY", "history_data_extension_object", "pack_history_data"]
+__all__ = ["HISTORY_DATA_BINARY", "datavalue_bytes", "history_data_extension_object", "pack_history_data"]
 
 HISTORY_DATA_BINARY = ua.NodeId(ua.ObjectIds.HistoryData_Encoding_DefaultBinary)
 
@@ -51,6 +51,13 @@ def _variant(value: object) -> bytes:
         return b"\x08" + struct.pack("<q", value)
     data = str(value).encode("utf-8")
     return b"\x0c" + _INT32.pack(len(data)) + data
+
+
+def datavalue_bytes(sample: Sample) -> int:
+    """The encoded size of ``sample``'s DataValue in :func:`pack_history_data` [bytes]."""
+    _, value, status = sample
+    variant = 9 if type(value) is float else len(_variant(value))
+    return 1 + variant + (4 if status else 0) + 8
 
 
 def pack_history_data(samples: Sequence[Sample]) -> bytes:

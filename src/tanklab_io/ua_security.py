@@ -579,6 +579,13 @@ class ServerSecurity:
         return self.audit_dir or self.home.audit_dir
 
 
+def set_transport_limits(server: Server, limits: Limits = LIMITS) -> None:
+    """The chunk size, chunk count and message size a tier's server accepts and sends."""
+    server.limits.max_recv_buffer = limits.chunk_bytes
+    server.limits.max_chunk_count = limits.max_chunks
+    server.limits.max_message_size = limits.message_bytes
+
+
 async def secure_server(
     server: TanklabServer, tier: str, security: ServerSecurity, limits: Limits = LIMITS
 ) -> AuditLog:
@@ -608,9 +615,7 @@ async def secure_server(
     server.set_identity_tokens([ua.UserNameIdentityToken, ua.X509IdentityToken])
     server.iserver.user_manager = TankUserManager(security.home.users_file, tier_identities(pki, tier), audit)
     server.set_certificate_validator(ReloadingValidator(pki))
-    server.limits.max_recv_buffer = limits.chunk_bytes
-    server.limits.max_chunk_count = limits.max_chunks
-    server.limits.max_message_size = limits.message_bytes
+    set_transport_limits(server, limits)
     iserver = server.iserver
     iserver.max_connections = limits.max_connections
     iserver.max_pending_activation_seconds = limits.handshake_s

@@ -14,7 +14,9 @@ from asyncua import Client, Server, ua
 
 from historian.history_read import HistoryReadService, install_history_read, site_tag_mapper
 from historian.store import HistoryStore
+from tankctl.ops.history_read import read_event_history
 from tanklab.history.model import EventRecord, Sample
+from tanklab_io.ua_security import set_transport_limits
 from tanklab_testing.procs import free_port
 
 S = 1_000_000
@@ -148,3 +150,40 @@ async def _read(
     rv.ContinuationPoint = cp
     p.NodesToRead = [rv]
     return await client.uaclient.history_read(p)
+
+
+@pytest.mark.parametrize("budget", [None, 10**9], ids=["default budget", "unbounded pages"])
+async def test_large_reads_fit_the_tiers_message_limit(backend, budget: int | None) -> None:
+    """A raw read of 16,000 values (288 kB) and an event read of 1,000 events (about
+    340 kB) through a server with the tiers' transport limits (262,140 bytes a message): the
+    service's response budget pages both, and the client gets everything. With unbounded pages
+    the same reads fail, as `tankctl alarms --history` did in a fresh-clone run (issue 21:
+    "Message size: 327315 is > configured max message size: 262140")."""
+    store: HistoryStore = backend.open()
+    n, n_events = 16_000, 1_000
+    store.append_samples({TAG: [Sample(T0 + k * S, float(k)) for k in range(n)]})
+    store.append_events(
+        [
+            EventRecord(T0 + k * S, b"ev%06d" % k, "i=2052", "PLC", 500, f"event {k}: " + "x" * 300, {})
+            for k in range(n_events)
+        ]
+    )
+    port = free_port()
+    url = f"opc.tcp://127.0.0.1:{port}/tanklab/historian"
+    server = Server()
+    await server.init()
+    server.set_endpoint(url)
+    set_transport_limits(server)
+    ns = await server.register_namespace("urn:tanklab")
+    options = {} if budget is None else {"max_response_bytes": budget}
+    install_history_read(server, store, site_tag_mapper(store, ns), **options)
+    async with server, Client(url) as client:
+        node = client.get_node(ua.NodeId(TAG, ns))
+        if budget is None:
+            got = await node.read_raw_history(dt(T0), dt(T0 + n * S), return_bounds=False)
+            assert [v.Value.Value for v in got] == [float(k) for k in range(n)]
+            events = await read_event_history(client, dt(T0), dt(T0 + n_events * S))
+            assert [e.message for e in events] == [f"event {k}: " + "x" * 300 for k in range(n_events)]
+        else:
+            with pytest.raises(ua.UaStatusCodeError):
+                await read_event_history(client, dt(T0), dt(T0 + n_events * S))

@@ -322,7 +322,7 @@ batches = st.lists(
                 st.floats(allow_nan=False),
                 st.integers(-(2**63), 2**63 - 1),
                 st.booleans(),
-                st.text(st.characters(exclude_characters="\x00"), max_size=5),
+                st.text(st.characters(codec="utf-8", exclude_characters="\x00"), max_size=5),
             ),
             st.sampled_from([0, UNCERTAIN, BAD_NO_DATA]),
         ),

@@ -10,14 +10,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from historian.history_read import _history_data
-from historian.ua_encode import history_data_extension_object
+from historian.ua_encode import datavalue_bytes, history_data_extension_object, pack_history_data
 from tanklab.history.model import Sample
 
 _values = st.one_of(
     st.floats(allow_nan=False),
     st.booleans(),
     st.integers(-(2**63), 2**63 - 1),
-    st.text(max_size=20),
+    st.text(st.characters(codec="utf-8"), max_size=20),
     st.none(),
 )
 _status = st.sampled_from([0, 0x8000_0000, 0x809B_0000, 0x40A4_0401, 0x0000_0402])
@@ -41,3 +41,18 @@ def test_one_of_each() -> None:
 def test_the_bytes_decode_to_the_object_path(rows: list[tuple[int, object, int]]) -> None:
     xs = [Sample(t, v, s) for t, v, s in rows]  # type: ignore[arg-type]
     assert _decode(xs) == _history_data(xs)
+
+
+@given(st.tuples(st.integers(0, 2**50), _values, _status))
+def test_datavalue_bytes_is_the_encoded_size(row: tuple[int, object, int]) -> None:
+    # the HistoryData body is an Int32 count and the DataValues, so one sample's share is the rest
+    sample = Sample(*row)  # type: ignore[arg-type]
+    assert datavalue_bytes(sample) == len(pack_history_data([sample])) - 4
+
+
+def test_datavalue_bytes_by_hand() -> None:
+    # mask 1 + Variant (type 1 + Double 8) + source ticks 8; + StatusCode 4 when not Good
+    assert datavalue_bytes(Sample(0, 1.5)) == 18
+    assert datavalue_bytes(Sample(0, 1.5, 0x8000_0000)) == 22
+    # a String "héllo": type 1 + Int32 length 4 + 6 UTF-8 bytes
+    assert datavalue_bytes(Sample(0, "héllo")) == 1 + 11 + 8
