@@ -17,7 +17,7 @@ import contextlib
 import logging
 import math
 import random
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, Sequence
 from typing import Any
 
 from asyncua import Client, Node, ua
@@ -73,6 +73,28 @@ ClientSetup = Callable[[Client], Awaitable[None]]
 
 SESSION_TIMEOUT_MS = 30_000
 """Session timeout a link asks for [ms]: a dead client's session is dropped within 30 s."""
+
+
+@contextlib.asynccontextmanager
+async def request_deadline(timeout_s: float) -> AsyncIterator[None]:
+    """``asyncio.timeout(timeout_s)`` around one asyncua request, raising TimeoutError when it expires.
+
+    asyncua bounds each request with its own ``wait_for`` (the wait_for2 package) on the same
+    timeout. When both timers fire in one loop iteration, or the answer arrives in the iteration
+    our deadline cancels the task, that ``wait_for`` raises ``CancelledWithResultError``, a
+    *subclass* of CancelledError, and ``asyncio.timeout`` turns only CancelledError itself into
+    TimeoutError: the subclass escaped as a cancellation and ended the PLC's scan task (a
+    fresh-clone CI run on a loaded machine, tests/integration/test_restarts.py). Here it becomes
+    a plain CancelledError inside the timeout, which then says TimeoutError when the
+    cancellation was its own and stays a cancellation when it came from outside (a stop).
+    """
+    async with asyncio.timeout(timeout_s):
+        try:
+            yield
+        except asyncio.CancelledError as e:
+            if type(e) is asyncio.CancelledError:
+                raise
+            raise asyncio.CancelledError(*e.args) from e
 
 
 def new_client(url: str, timeout_s: float) -> Client:
@@ -371,8 +393,8 @@ class Link:
         if not self.healthy or self.client is None:
             raise LinkError(f"{self.name} link to {self.url} is down")
         try:
-            # asyncio.timeout, not wait_for: no extra task per request (a few us, every scan).
-            async with asyncio.timeout(self.timeout_s):
+            # a deadline, not wait_for: no extra task per request (a few us, every scan).
+            async with request_deadline(self.timeout_s):
                 return list(await self.client.read_attributes(list(nodes)))
         except Exception as e:
             raise await self._fail("read", e) from e
@@ -391,7 +413,7 @@ class Link:
             raise LinkError(f"{self.name} link to {self.url} is down")
         paths = list(values)
         try:
-            async with asyncio.timeout(self.timeout_s):
+            async with request_deadline(self.timeout_s):
                 return list(
                     await self.client.uaclient.write_attributes(
                         [self.node(p).nodeid for p in paths],
@@ -409,7 +431,7 @@ class Link:
             raise LinkError(f"{self.name} link to {self.url} is down")
         parent = self.client.get_node(ua.NodeId(method_path.rsplit(".", 1)[0], self.idx))
         try:
-            async with asyncio.timeout(self.timeout_s):
+            async with request_deadline(self.timeout_s):
                 result = await parent.call_method(ua.NodeId(method_path, self.idx), *args)
         except ua.UaStatusCodeError:
             raise

@@ -32,7 +32,7 @@ from tanklab.tags import (
     supervisor_tags,
     tags_by_path,
 )
-from tanklab_io.ua_client import BACKOFF_CAP_S, Link, backoff_delay, describe_error
+from tanklab_io.ua_client import BACKOFF_CAP_S, Link, backoff_delay, describe_error, request_deadline
 from tanklab_io.ua_security import client_setup
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
@@ -279,3 +279,60 @@ async def test_a_client_says_which_side_ended_its_connection(caplog: pytest.LogC
 
     await wait_until(said, 20, what="the client's connection-lost warning")
     await link.close()
+
+
+# --------------------------------------------------------------------------------------------
+# The request deadline: asyncua's wait_for racing ours (CancelledWithResultError)
+# --------------------------------------------------------------------------------------------
+
+
+async def _answer_in_the_iteration_the_deadline_fires(deadline: object) -> str:
+    """asyncua's own wait_for (wait_for2, as its requests use) inside ``deadline(0)``: the
+    deadline's cancel and the answer land in the same loop iteration, no wall time involved."""
+    from asyncua.common.utils import wait_for as asyncua_wait_for
+
+    loop = asyncio.get_running_loop()
+    answer: asyncio.Future[str] = loop.create_future()
+    async with deadline(0):  # type: ignore[operator]
+        loop.call_soon(answer.set_result, "answer")  # right after the deadline's own callback
+        return await asyncua_wait_for(answer, 10.0)
+    raise AssertionError("unreachable")
+
+
+async def test_asyncio_timeout_alone_lets_the_race_escape_as_a_cancellation() -> None:
+    # The defect request_deadline exists for: the subclass of CancelledError that asyncua raises
+    # is not turned into TimeoutError, so it ends the task that made the request.
+    with pytest.raises(asyncio.CancelledError) as info:
+        await _answer_in_the_iteration_the_deadline_fires(asyncio.timeout)
+    assert type(info.value) is not asyncio.CancelledError
+    asyncio.current_task().uncancel()  # type: ignore[union-attr]
+
+
+async def test_the_request_deadline_turns_the_race_into_a_timeout() -> None:
+    with pytest.raises(TimeoutError):
+        await _answer_in_the_iteration_the_deadline_fires(request_deadline)
+
+
+async def test_the_request_deadline_passes_a_stop_through_as_a_cancellation() -> None:
+    started = asyncio.Event()
+
+    async def request() -> None:
+        async with request_deadline(60.0):
+            started.set()
+            await asyncio.Event().wait()
+
+    task = asyncio.create_task(request())
+    await started.wait()
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+    assert task.cancelled()
+
+
+async def test_the_request_deadline_returns_what_the_request_returns() -> None:
+    async def request() -> int:
+        return 42
+
+    async with request_deadline(60.0):
+        value = await request()
+    assert value == 42
