@@ -320,6 +320,30 @@ def test_resources_are_requested_and_bounded(overlay: str) -> None:
         assert set(r["requests"]) == {"cpu", "memory"} and set(r["limits"]) == {"cpu", "memory"}, c["name"]
 
 
+MEASURED_MIB = {
+    "plant": (184.9, 200.2),
+    "plc": (162.1, 177.5),
+    "supervisor": (193.1, 208.3),
+    "historian": (158.6, 173.2),
+}
+"""(steady RSS, peak RSS) of each tier under `tankctl up` [MiB] (docs/kubernetes.md "Resources")."""
+PROBE_MIB = 66.8
+"""Peak RSS of one `python -m tankctl.health` [MiB]: an exec probe runs in the tier's cgroup."""
+
+
+def mebibytes(quantity: str) -> float:
+    units = {"Mi": 1.0, "Gi": 1024.0}
+    return float(quantity[:-2]) * units[quantity[-2:]]
+
+
+@pytest.mark.parametrize("tier", MEASURED_MIB)
+def test_memory_figures_cover_the_measured_rss_and_a_probe(site: list[dict[str, Any]], tier: str) -> None:
+    steady, peak = MEASURED_MIB[tier]
+    resources = site_container(site, tier)["resources"]
+    assert mebibytes(resources["requests"]["memory"]) >= steady
+    assert mebibytes(resources["limits"]["memory"]) >= peak + PROBE_MIB
+
+
 @pytest.mark.parametrize("overlay", ["site", "fleet"])
 def test_single_writer_workloads_never_overlap(overlay: str) -> None:
     """One PLC driving the pumps and one writer of each volume: Recreate, one replica."""
