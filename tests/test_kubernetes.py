@@ -273,7 +273,7 @@ def writes_of(container: dict[str, Any], env: dict[str, str]) -> list[str]:
     args = container["args"]
     paths = [args[k + 1] for k, a in enumerate(args) if a in ("--state-file", "--retain-file")]
     if container["name"] != "hmi":
-        paths.append(env["TANKLAB_AUDIT_DIR"] + "/x.log")
+        paths.append(f"{env['TANKLAB_AUDIT_DIR']}/{container['name']}.log")  # tanklab_io.audit
     if "TANKLAB_HISTORIAN_URL" in env:
         paths.append(env["TANKLAB_HISTORIAN_URL"])
     return paths
@@ -311,6 +311,16 @@ def test_every_writable_mount_is_a_volume_and_every_write_lands_on_a_pvc(overlay
                 )
     if overlay == "site":
         assert claims == {f"{t}-state" for t in TIER_PORTS}
+
+
+def test_fleet_tiers_share_their_site_volume_without_sharing_a_file(fleet: list[dict[str, Any]]) -> None:
+    spec = pod_spec(one(fleet, "StatefulSet", "site"))
+    tiers = [c for c in spec["containers"] if c["name"] in TIER_PORTS]
+    writes = [p for c in tiers for p in writes_of(c, env_of(c, fleet))]
+    assert len(writes) == len(set(writes)) == 8  # 3 state or retentive files, 4 audit logs, the store
+    for c in tiers:
+        (state,) = [m for m in c["volumeMounts"] if m["mountPath"] == "/var/lib/tanklab"]
+        assert state["name"] == "state" and "subPath" not in state  # a subPath dir would be root's
 
 
 @pytest.mark.parametrize("overlay", ["site", "fleet"])
