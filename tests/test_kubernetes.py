@@ -524,12 +524,19 @@ def test_fleet_sites_accept_only_operators(fleet: list[dict[str, Any]]) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+def site_image(fleet: list[dict[str, Any]]) -> str:
+    images = {c["image"] for c in pod_spec(one(fleet, "StatefulSet", "site"))["containers"]}
+    assert len(images) == 1
+    return images.pop()
+
+
 def pick_site(
     fleet: list[dict[str, Any]], tmp_path: Path, index: str, sites: str
 ) -> subprocess.CompletedProcess[str]:
     spec = pod_spec(one(fleet, "StatefulSet", "site"))
     (init,) = spec["initContainers"]
-    assert init["command"] == ["sh", "-c"]
+    assert init["command"] == ["sh", "-c"]  # the one container that replaces the entrypoint
+    assert init["image"] == site_image(fleet)
     env_names = {e["name"] for e in init["env"]}
     assert env_names == {"TANKLAB_SITE_INDEX", "TANKLAB_FLEET_SITES", "TANKLAB_SITE_OUT"}
     index_ref = next(e for e in init["env"] if e["name"] == "TANKLAB_SITE_INDEX")["valueFrom"]["fieldRef"]
