@@ -47,6 +47,7 @@ class TankctlGroup(LazyGroup):
         "scenario": Lazy("tankctl.ops.scenario", "scenario_app", group=True),
         "pki": Lazy("tankctl.security_cli", "pki_app", group=True),
         "user": Lazy("tankctl.security_cli", "user_app", group=True),
+        "k8s": Lazy("tankctl.k8s_cli", "k8s_app", group=True),
     }
     order: ClassVar[tuple[str, ...]] = (
         *OPERATOR_COMMANDS,
@@ -64,6 +65,7 @@ class TankctlGroup(LazyGroup):
         "scenario",
         "pki",
         "user",
+        "k8s",
         "docs",
     )
 

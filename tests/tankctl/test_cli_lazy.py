@@ -23,7 +23,7 @@ ENV = {"COLUMNS": "100", "TERMINAL_WIDTH": "100"}
 
 
 def _eager_app() -> typer.Typer:
-    from tankctl import cli, history_cli, ops, security_cli, simulate_cli, tune_cli
+    from tankctl import cli, history_cli, k8s_cli, ops, security_cli, simulate_cli, tune_cli
     from tankctl.usage import OneLineUsage
 
     app = typer.Typer(
@@ -39,6 +39,7 @@ def _eager_app() -> typer.Typer:
     app.command("history", cls=OneLineUsage)(history_cli.history_command)
     simulate_cli.register(app)
     security_cli.register(app)
+    app.add_typer(k8s_cli.k8s_app, name="k8s")
     app.add_typer(cli.docs_app, name="docs")
     for command in (cli.linearize, cli.plant, cli.plc, cli.supervisor, cli.historian, cli.up):
         app.command()(command)
