@@ -44,7 +44,7 @@ class TankctlGroup(LazyGroup):
         "simulate": Lazy("tankctl.simulate_cli", "simulate_command"),
         "compare": Lazy("tankctl.simulate_cli", "compare_command"),
         "tune": Lazy("tankctl.tune_cli", "app", group=True),
-        "scenario": Lazy("tankctl.ops.scenario", "scenario_app", group=True),
+        "scenario": Lazy("tankctl.scenario_cli", "scenario_app", group=True),
         "pki": Lazy("tankctl.security_cli", "pki_app", group=True),
         "user": Lazy("tankctl.security_cli", "user_app", group=True),
         "k8s": Lazy("tankctl.k8s_cli", "k8s_app", group=True),

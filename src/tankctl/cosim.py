@@ -47,6 +47,8 @@ class Trace:
     """Applied (Kp, Ki, Kd) per loop, (n_loops, 3) per scan."""
     modes: list[FloatArray] = field(default_factory=list)
     """Loop modes per scan (LoopMode values)."""
+    trips: list[FloatArray] = field(default_factory=list)
+    """Latched interlock trips after each scan (1.0 tripped), one per ``PlcProgram.interlocks``."""
     mpc_solve_s: list[float] = field(default_factory=list)
     """OSQP solve time of the supervisor's MPC step after each scan [s] (NaN when none ran)."""
 
@@ -65,6 +67,10 @@ def _gain_rows(applied: tuple[PidGainsSpec | None, ...]) -> FloatArray:
 
 def _mode_row(modes: tuple[LoopMode, ...]) -> FloatArray:
     return np.array([int(m) for m in modes], dtype=float)
+
+
+def _trip_row(trips: tuple[bool, ...]) -> FloatArray:
+    return np.array(trips, dtype=float)
 
 
 class _LastRows:
@@ -282,6 +288,7 @@ class CoSimulation:
         tr.setpoints_m.append(self._rows.get("sp", tuple([lp.sp_m for lp in loops]), _setpoint_row))
         tr.gains.append(self._rows.get("gains", tuple([lp.applied for lp in loops]), _gain_rows))
         tr.modes.append(self._rows.get("modes", tuple([lp.mode for lp in loops]), _mode_row))
+        tr.trips.append(self._rows.get("trips", tuple([il.tripped for il in self.plc.interlocks]), _trip_row))
 
     def run(self, duration_s: float, before_scan: Callable[[CoSimulation], None] | None = None) -> Trace:
         """Run for ``duration_s`` of model time (whole scans); return the trace."""

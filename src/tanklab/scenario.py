@@ -21,13 +21,26 @@ Example::
 
 A variant may change the site for its run with ``set``: dotted paths into the site file
 (list items by index) mapped to new values, e.g. ``{"plc.loops.0.gains.kp": 2.1e-3}``.
+
+An optional ``expect:`` list states bounds on a loop's metrics, which ``tankctl scenario check``
+runs and checks (a CI gate for a controller)::
+
+    expect:
+      - {variant: mpc, loop: LIC1, metric: iae, max: 2.5}
+      - {loop: LIC1, metric: overshoot_pct, max: 5}      # every variant
+      - {loop: LIC2, metric: interlock_trips, max: 0}
+
+The metrics are those of ``tankctl simulate`` (:class:`tankctl.metrics.LoopMetrics`: ``iae``,
+``ise``, ``itae`` over the whole run, the worst ``overshoot_pct`` and ``settling_time_s`` over the
+loop's steps, ``max_du``, ``constraint_violations``) and ``interlock_trips``, the number of times
+the high-high interlock of the tank the loop's pump feeds latched.
 """
 
 from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import Field, ValidationError, model_validator
 
@@ -166,6 +179,40 @@ class PublishedMetric(Model):
     note: str = Field("", description="Where it was printed and how it was converted.")
 
 
+ExpectMetric = Literal[
+    "iae",
+    "ise",
+    "itae",
+    "overshoot_pct",
+    "settling_time_s",
+    "max_du",
+    "constraint_violations",
+    "interlock_trips",
+]
+"""The metrics an expectation may bound (see the module docstring for their meaning)."""
+
+EXPECT_METRICS: tuple[str, ...] = get_args(ExpectMetric)
+
+
+class Expectation(Model):
+    """A bound on one loop's metric in one variant's run (or in every variant's)."""
+
+    variant: str | None = Field(None, description="Variant it applies to; every variant when omitted.")
+    loop: str = Field(pattern=LOOP_NAME, description="Loop whose metric is bounded, e.g. LIC1.")
+    metric: ExpectMetric = Field(description="Metric key, in the units of `tankctl simulate`.")
+    max: Finite | None = Field(None, description="Largest value that passes (inclusive).")
+    min: Finite | None = Field(None, description="Smallest value that passes (inclusive).")
+    note: str = Field("", description="Why this bound (where it comes from).")
+
+    @model_validator(mode="after")
+    def _bounded(self) -> Expectation:
+        if self.max is None and self.min is None:
+            raise ValueError("an expectation needs max, min or both")
+        if self.max is not None and self.min is not None and self.min > self.max:
+            raise ValueError(f"min {self.min:g} is above max {self.max:g}")
+        return self
+
+
 class Scenario(Model):
     """A scenario file."""
 
@@ -182,12 +229,20 @@ class Scenario(Model):
         0.02, description="Settling band as a fraction of the step size (default 2 %)."
     )
     published: list[PublishedMetric] = Field(default_factory=list, description="The paper's numbers.")
+    expect: list[Expectation] = Field(
+        default_factory=list, description="Bounds on loop metrics that `tankctl scenario check` checks."
+    )
 
     @model_validator(mode="after")
     def _unique_variants(self) -> Scenario:
         names = [v.name for v in self.variants]
         if len(set(names)) != len(names):
             raise ValueError("variant names must be unique")
+        for i, e in enumerate(self.expect):
+            if e.variant is not None and e.variant not in names:
+                raise ValueError(
+                    f"expect[{i}].variant: no variant {e.variant!r} (variants: {', '.join(names)})"
+                )
         return self
 
     def sorted_events(self) -> list[Event]:
@@ -279,6 +334,9 @@ def check_against_site(scenario: Scenario, site: SiteConfig) -> None:
     for name in list(init.setpoints_m) + list(init.modes):
         if name not in loops:
             raise ConfigError(f"{where}: initial: unknown loop {name}")
+    for i, e in enumerate(scenario.expect):
+        if e.loop not in loops:
+            raise ConfigError(f"{where}: expect[{i}].loop: unknown loop {e.loop}")
     for i, ev in enumerate(scenario.events):
         target: str | None = None
         for attr in ("loop", "tank", "valve", "transmitter"):

@@ -87,7 +87,8 @@ class VariantResult:
     Arrays: ``t_s`` (N,) [s]; ``levels_m`` (N, tanks) [m]; ``setpoints_m`` (N, loops) [m];
     ``commands`` (N, pumps) [pump unit]; ``flows_m3_s`` (N, pumps); ``gains`` (N, loops, 3) in
     the block's units (``gain_names`` says which; NaN where a block has fewer); ``modes``
-    (N, loops) LoopMode values.
+    (N, loops) LoopMode values; ``trips`` (N, interlocks) 1.0 where the interlock of
+    ``interlock_tanks`` is latched after the scan.
     """
 
     name: str
@@ -105,6 +106,8 @@ class VariantResult:
     modes: FloatArray
     reference_m: FloatArray
     """(N, loops) reference-model output y_m of MRAC loops [m] (NaN for other blocks)."""
+    trips: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    interlock_tanks: list[str] = field(default_factory=list)
     loops: dict[str, LoopMetrics] = field(default_factory=dict)
     steps: list[StepResult] = field(default_factory=list)
     disturbances: list[DisturbanceResult] = field(default_factory=list)

@@ -200,6 +200,8 @@ def run_variant(
         gain_names=_gain_names(site),
         modes=tr.array("modes"),
         reference_m=reference,
+        trips=tr.array("trips").reshape(n, len(cs.plc.interlocks)),
+        interlock_tanks=[il.tank_name for il in cs.plc.interlocks],
     )
     event_scans = sorted(k for k in due if k < n)
     _evaluate(result, scenario.settling_band, event_scans, snapshots)
