@@ -23,7 +23,7 @@ ENV = {"COLUMNS": "100", "TERMINAL_WIDTH": "100"}
 
 
 def _eager_app() -> typer.Typer:
-    from tankctl import cli, history_cli, k8s_cli, ops, security_cli, simulate_cli, tune_cli
+    from tankctl import cli, history_cli, k8s_cli, ops, scenario_cli, security_cli, simulate_cli, tune_cli
     from tankctl.usage import OneLineUsage
 
     app = typer.Typer(
@@ -36,6 +36,10 @@ def _eager_app() -> typer.Typer:
     app.add_typer(cli.config_app, name="config")
     app.add_typer(tune_cli.app, name="tune")
     ops.register(app)
+    # the real CLI's scenario group is tankctl.scenario_cli's: ops' `run` plus `check`
+    for group in app.registered_groups:
+        if group.name == "scenario":
+            group.typer_instance = scenario_cli.scenario_app
     app.command("history", cls=OneLineUsage)(history_cli.history_command)
     simulate_cli.register(app)
     security_cli.register(app)
