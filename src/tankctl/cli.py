@@ -58,6 +58,7 @@ class TankctlGroup(LazyGroup):
         "plc",
         "supervisor",
         "historian",
+        "hmi",
         "up",
         "config",
         "tune",
@@ -558,6 +559,94 @@ def historian(
         f"historian: {site.name} at opc.tcp://{bind}:{p}/tanklab/historian (store {shown}, speed {spd:g})",
         runner,
     )
+
+
+@app.command()
+def hmi(
+    config: ConfigOpt = None,
+    host: Annotated[
+        str | None, typer.Option(help="Address to bind (env TANKLAB_HMI_HOST; default 127.0.0.1).")
+    ] = None,
+    port: Annotated[int | None, typer.Option(help="HTTP port (env TANKLAB_HMI_PORT; default 8080).")] = None,
+    base_port: Annotated[
+        int | None,
+        typer.Option(help="The tiers at ports N..N+3 on 127.0.0.1 (env TANKLAB_BASE_PORT)."),
+    ] = None,
+    plant_url: Annotated[str | None, typer.Option(help="Plant endpoint (env TANKLAB_PLANT_URL).")] = None,
+    plc_url: Annotated[str | None, typer.Option(help="PLC endpoint (env TANKLAB_PLC_URL).")] = None,
+    supervisor_url: Annotated[
+        str | None, typer.Option(help="Supervisor endpoint (env TANKLAB_SUPERVISOR_URL).")
+    ] = None,
+    historian_url: Annotated[
+        str | None, typer.Option(help="Historian endpoint (env TANKLAB_HISTORIAN_ENDPOINT).")
+    ] = None,
+    no_historian: Annotated[
+        bool, typer.Option("--no-historian", help="No historian: no trends from history.")
+    ] = False,
+    idle_timeout: Annotated[
+        float, typer.Option(help="Seconds after which an idle login session is closed.")
+    ] = 900.0,
+    home: HomeOpt = None,
+) -> None:
+    """Serve the browser HMI at http://HOST:PORT (docs/hmi.md): mimic, faceplates, trends, alarms.
+
+    Each user logs in with their own tanklab account: the HMI opens that user's own OPC UA
+    sessions to the tiers (with the CLI certificate of the security home), so the tiers check the
+    password, enforce the role and audit the user. Loopback by default."""
+    from tankctl.ops.errors import UsageError
+    from tankctl.ops.stack import resolve_endpoints
+    from tanklab_io.home import SecurityHome, default_home
+
+    site = load(resolve_config(config))
+    bind = host or _env("TANKLAB_HMI_HOST") or "127.0.0.1"
+    env_port = _env("TANKLAB_HMI_PORT")
+    try:
+        p = port if port is not None else int(env_port) if env_port else 8080
+    except ValueError:
+        raise fail(f"TANKLAB_HMI_PORT must be a port number, got {env_port!r}") from None
+    if not 1 <= p <= 65535:
+        raise fail(f"--port must be 1..65535, got {p}")
+    if not idle_timeout > 0:
+        raise fail(f"--idle-timeout must be > 0, got {idle_timeout}")
+    if site.plc is None:
+        raise fail("the HMI needs a site with a PLC program (plc section)")
+    try:
+        endpoints = resolve_endpoints(
+            site,
+            urls={
+                "plant": plant_url,
+                "plc": plc_url,
+                "supervisor": supervisor_url,
+                "historian": historian_url,
+            },
+            env=os.environ,
+            base_port=base_port,
+        )
+    except UsageError as e:
+        raise fail(str(e)) from None
+    urls: dict[str, str] = {str(tier): url for tier, url in endpoints.items()}
+    if site.supervisor is None:
+        urls.pop("supervisor", None)
+    if no_historian:
+        urls.pop("historian", None)
+    security = SecurityHome(home or default_home())
+
+    async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
+        from hmi.runtime import run_hmi
+
+        await run_hmi(
+            site,
+            host=bind,
+            port=p,
+            urls=urls,
+            home=security,
+            stop=stop,
+            ready=ready,
+            idle_timeout_s=idle_timeout,
+        )
+
+    shown = f"[{bind}]" if ":" in bind else bind
+    serve("hmi", f"hmi: {site.name} at http://{shown}:{p} (plc {urls['plc']})", runner)
 
 
 @app.command()
