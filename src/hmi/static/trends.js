@@ -12,6 +12,7 @@ import { el } from "./store.js";
 const COLOURS = ["#1f4e79", "#c55a11", "#548235", "#7030a0", "#bf9000", "#2e75b6", "#a50021", "#3b3838"];
 const FLOW_LEAVES = ["MV", "ManualMV", "RemoteMV", "Command", "Flow", "Disturbance"];
 const MAX_POINTS = 20000;
+const stepped = uPlot.paths.stepped({ align: 1 });
 
 function scaleOf(path) {
   const leaf = path.split(".").pop();
@@ -174,6 +175,7 @@ export class Trend {
       const series = [{ label: "time" }, ...this.paths.map((p, k) => ({
         label: p, scale: scaleOf(p), stroke: COLOURS[k % COLOURS.length], width: p.endsWith(".SP") ? 1.5 : 2,
         dash: p.endsWith(".SP") ? [6, 4] : undefined, spanGaps: true,
+        paths: stepped, // hold each value until the next one (never a ramp between two changes)
       }))];
       const axes = [{}, { scale: "y", label: "m" }];
       if (this.paths.some((p) => scaleOf(p) === "q")) axes.push({ scale: "q", side: 1, label: "m³/s", grid: { show: false } });
