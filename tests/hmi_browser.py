@@ -34,6 +34,7 @@ from typing import Any, TypeVar
 from selenium import webdriver
 from selenium.common.exceptions import StaleElementReferenceException, WebDriverException
 from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 from selenium.webdriver.remote.webelement import WebElement
 from selenium.webdriver.support.ui import Select, WebDriverWait
@@ -270,7 +271,9 @@ class Browser:
 
     def faceplate(self, key: str, element: str) -> WebElement:
         """Click mimic element ``#element`` and wait for faceplate ``key`` ("loop:LIC1")."""
-        self.css(f"#mimic [id='{element}']").click()
+        # a pointer click at the element's centre, as a user's: whatever is drawn on top there
+        # (a tank's water over its vessel) opens the same faceplate
+        ActionChains(self.driver).move_to_element(self.css(f"#mimic [id='{element}']")).click().perform()
         return self.wait(
             lambda: (
                 self.css("#faceplate")

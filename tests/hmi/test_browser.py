@@ -139,7 +139,7 @@ def test_operator_acknowledges_the_leak_alarm_with_a_comment(page: Browser, stac
     page.faceplate("loop:LIC1", "LIC1-bubble")
     assert page.choose("mode", "mode-apply", "MANUAL") == "Good"
     assert page.enter("manual-input", "manual-apply", "0") == "Good"
-    page.faceplate("tank:T1", "T1-water")
+    page.faceplate("tank:T1", "T1-vessel")
     assert page.enter("leak-input", "leak-apply", "1.5").startswith("not sent")
     # the disturbance's range is the plant's: the tier refuses, the faceplate shows its status code
     assert page.enter("disturbance-input", "disturbance-apply", "1").startswith("BadOutOfRange")
@@ -188,7 +188,7 @@ def test_operator_acknowledges_the_leak_alarm_with_a_comment(page: Browser, stac
 def test_observer_sees_every_control_disabled_and_a_forged_write_is_refused(page: Browser) -> None:
     login(page, "observer")
     assert page.css("#whoami").text == "observer (Observer)"
-    for key, element in (("loop:LIC1", "LIC1-bubble"), ("tank:T1", "T1-water"), ("valve:V13", "V13-valve")):
+    for key, element in (("loop:LIC1", "LIC1-bubble"), ("tank:T1", "T1-vessel"), ("valve:V13", "V13-valve")):
         page.faceplate(key, element)
         controls = page.all("#faceplate [data-write]")
         assert controls, key

@@ -16,6 +16,8 @@ import { el, fmt } from "./store.js";
 const MODES = ["MANUAL", "AUTO", "REMOTE"];
 const SUPERVISOR_MODES = ["OFF", "ADVISORY", "ADAPTIVE_PID", "MPC"];
 const FAULTS = ["NONE", "BIAS", "STUCK", "DRIFT"];
+/** Axis ticks of flows (1e-5 m^3/s): in scientific notation, not rounded to 0. */
+const sci = (u, splits) => splits.map((v) => (v === 0 ? "0" : v.toExponential(1)));
 
 export class Faceplates {
   constructor(container, site, store, session, hooks) {
@@ -308,7 +310,8 @@ export class Faceplates {
         chart = new uPlot({
           width: Math.max(260, chartBox.clientWidth || 320), height: 200, series,
           scales: { x: { time: false } },
-          axes: [{ label: "k" }, { scale: "m", label: "m" }, { scale: "q", side: 1, label: "m³/s", grid: { show: false } }],
+          legend: { live: false },
+          axes: [{ label: "k" }, { scale: "m", label: "m" }, { scale: "q", side: 1, label: "m³/s", size: 64, values: sci, grid: { show: false } }],
         }, data, chartBox);
       } else {
         chart.setData(data);

@@ -178,7 +178,7 @@ export class Trend {
         paths: stepped, // hold each value until the next one (never a ramp between two changes)
       }))];
       const axes = [{}, { scale: "y", label: "m" }];
-      if (this.paths.some((p) => scaleOf(p) === "q")) axes.push({ scale: "q", side: 1, label: "m³/s", grid: { show: false } });
+      if (this.paths.some((p) => scaleOf(p) === "q")) axes.push({ scale: "q", side: 1, label: "m³/s", size: 64, values: (u, splits) => splits.map((v) => (v === 0 ? "0" : v.toExponential(1))), grid: { show: false } });
       const opts = {
         ...this.size(), series, axes,
         scales: { x: { time: true }, y: { auto: true }, q: { auto: true } },
