@@ -667,6 +667,10 @@ def up(
     ] = Path("var"),
     host: Annotated[str, typer.Option(help="Address the tiers bind and are reached at.")] = "127.0.0.1",
     home: HomeOpt = None,
+    hmi_port: Annotated[
+        int, typer.Option(help="The browser HMI's HTTP port on --host (http://HOST:PORT).")
+    ] = 8080,
+    no_hmi: Annotated[bool, typer.Option("--no-hmi", help="Do not start the browser HMI.")] = False,
     fresh: Annotated[
         bool,
         typer.Option(
@@ -675,7 +679,7 @@ def up(
         ),
     ] = False,
 ) -> None:
-    """Start plant, PLC, supervisor and historian as child processes and show a live board.
+    """Start plant, PLC, supervisor, historian and the browser HMI as child processes and show a live board.
 
     Before starting anything it checks that every port is free, that no stack runs from the
     same log directory and that the PKI is complete; on first use it creates the PKI and an
@@ -696,6 +700,10 @@ def up(
         raise fail(f"--clock must be realtime or lockstep, got {clock!r}")
     if not 1 <= base_port <= 65532:
         raise fail(f"--base-port must be 1..65532, got {base_port}")
+    if not 1 <= hmi_port <= 65535:
+        raise fail(f"--hmi-port must be 1..65535, got {hmi_port}")
+    if not no_hmi and base_port <= hmi_port <= base_port + 3:
+        raise fail(f"--hmi-port {hmi_port} is one of the tiers' ports {base_port}..{base_port + 3}")
     spd = resolve_speed(speed)
     stack = LocalStack(
         site,
@@ -706,6 +714,7 @@ def up(
         log_dir / site.name,
         host=host,
         home=SecurityHome(home or default_home()),
+        hmi_port=None if no_hmi else hmi_port,
     )
     try:
         notes = stack.preflight(sorted({"localhost", "127.0.0.1", host, socket.gethostname()}))
