@@ -53,6 +53,8 @@ STATIC_DIR = Path(__file__).parent / "static"
 MAX_BODY_BYTES = 64 * 1024
 """Largest JSON body a command may have."""
 WS_NOT_LOGGED_IN = 4401
+WS_FOREIGN_ORIGIN = 4403
+MAX_TREND_PATHS = 32
 MAX_TREND_POINTS = 20_000
 EXPIRE_EVERY_S = 5.0
 """How often idle sessions are looked for [s]."""
@@ -235,6 +237,11 @@ def create_app(state: HmiState, *, https: bool = False) -> Starlette:
     async def ws(websocket: WebSocket) -> None:
         s = session_of(websocket)
         await websocket.accept()
+        if not _same_origin(websocket):
+            # Another site's page (cross-site WebSocket hijacking): SameSite=Strict already keeps
+            # the cookie away from it in current browsers; this refuses it in any browser.
+            await websocket.close(code=WS_FOREIGN_ORIGIN)
+            return
         hub = state.hubs.get(s.user) if s is not None else None
         if s is None or hub is None:
             await websocket.close(code=WS_NOT_LOGGED_IN)
@@ -389,8 +396,8 @@ def create_app(state: HmiState, *, https: bool = False) -> Starlette:
     async def trend(request: Request) -> Response:
         async def read(hub: UserHub) -> dict[str, Any]:
             tags = request.query_params.getlist("path")
-            if not tags:
-                raise BadRequestError("at least one path is wanted")
+            if not tags or len(tags) > MAX_TREND_PATHS:
+                raise BadRequestError(f"1 to {MAX_TREND_PATHS} paths are wanted")
             for t in tags:
                 if t not in hub.model.tags or hub.model.tags[t].kind != "variable":
                     raise BadRequestError(f"unknown path {t}")
@@ -473,6 +480,16 @@ def _client_message(hub: UserHub, client: Any, text: str) -> dict[str, Any] | No
     if unknown:
         return {"type": "error", "error": f"unknown path {', '.join(unknown)}"}
     return None
+
+
+def _same_origin(conn: HTTPConnection) -> bool:
+    """Whether the request's ``Origin`` (sent by every browser on a WebSocket) names this server's
+    own host and port; a request without one (not a browser) passes."""
+    origin = conn.headers.get("origin")
+    if origin is None:
+        return True
+    host = conn.headers.get("host", "")
+    return origin.split("://", 1)[-1].rstrip("/").lower() == host.lower()
 
 
 async def _tcp_probe(url: str) -> bool:

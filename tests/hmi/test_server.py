@@ -22,6 +22,7 @@ from typing import Any
 import httpx
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed
 
 from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, session_home, wait_until
 from hmi.app import HmiState, create_app
@@ -235,9 +236,21 @@ def ws_url(hmi: Hmi) -> str:
 
 async def test_websocket_without_login_is_closed_with_4401(hmi: Hmi) -> None:
     async with connect(ws_url(hmi)) as ws:
-        with pytest.raises(Exception) as caught:
+        with pytest.raises(ConnectionClosed) as caught:
             await asyncio.wait_for(ws.recv(), 20.0)
     assert ws.close_code == 4401, caught.value
+
+
+async def test_websocket_from_another_sites_page_is_refused(hmi: Hmi) -> None:
+    async with browser(hmi, "operator") as b:
+        headers = {"Cookie": f"tanklab_hmi={b.cookies['tanklab_hmi']}", "Origin": "http://evil.example"}
+        async with connect(ws_url(hmi), additional_headers=headers) as ws:
+            with pytest.raises(ConnectionClosed):
+                await asyncio.wait_for(ws.recv(), 20.0)
+        assert ws.close_code == 4403
+        own = {"Cookie": headers["Cookie"], "Origin": hmi.url}
+        async with connect(ws_url(hmi), additional_headers=own, origin=None) as ws:
+            assert json.loads(await asyncio.wait_for(ws.recv(), 20.0))["type"] == "hello"
 
 
 async def test_websocket_hello_values_alarms_and_changes(hmi: Hmi) -> None:
