@@ -128,6 +128,8 @@ class HmiStack:
         async def serving() -> bool:
             if not self.hmi.running:
                 raise RuntimeError(f"tankctl hmi exited: {self.hmi.log_text()[-2000:]}")
+            if not self.up.running:
+                raise RuntimeError(f"tankctl up exited: {self.up.lines[-30:]}")
             status, body = await asyncio.to_thread(http_json, f"{self.url}/healthz")
             return status == 200 and bool(body) and all(body.get("tiers", {}).values())
 

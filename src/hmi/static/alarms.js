@@ -37,8 +37,12 @@ export class Alarms {
     this.alarms = [];
     this.drafts = new Map(); // alarm id -> comment being typed
     this.historyRoot = historyRoot;
-    historyRoot.querySelector("[data-action=alarm-history]").addEventListener("click", () => this.loadHistory());
-    banner.addEventListener("click", () => this.focusTop());
+    // assigned, not added: the banner and the history button outlive a login
+    historyRoot.querySelector("[data-action=alarm-history]").onclick = () => this.loadHistory();
+    banner.onclick = () => this.focusTop();
+    banner.onkeydown = (ev) => {
+      if (ev.key === "Enter") this.focusTop();
+    };
     this.render();
   }
 

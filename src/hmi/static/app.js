@@ -32,6 +32,10 @@ function teardown() {
   app.trend.dispose();
   app.faceplates.close();
   app = null;
+  // nothing of the last session stays in the page
+  for (const sel of ["#mimic", "#links", "#alarm-list tbody", "#alarm-history tbody", "#alarm-banner", "#trend-status", "#alarm-status"]) {
+    $(sel).replaceChildren();
+  }
   store.clear();
   store.listeners.clear();
   setCsrf(null);

@@ -35,15 +35,19 @@ export class Trend {
     this.status = root.querySelector("#trend-status");
     this.picker = root.querySelector("#trend-tags");
     store.listen((changed) => this.onValues(changed));
-    root.querySelector("[data-action=trend-apply]").addEventListener("click", () => this.applyPicker());
-    root.querySelector("#trend-add").addEventListener("keydown", (ev) => {
+    // the controls outlive a login: their handlers are assigned (not added), so the trend of
+    // the session before a logout never answers them again
+    root.querySelector("[data-action=trend-apply]").onclick = () => this.applyPicker();
+    root.querySelector("#trend-add").onkeydown = (ev) => {
       if (ev.key === "Enter") this.applyPicker();
-    });
-    root.querySelector("#trend-window").addEventListener("change", (ev) => {
+    };
+    root.querySelector("#trend-window").onchange = (ev) => {
       this.windowS = Number(ev.target.value);
       this.load();
-    });
-    const on = (action, fn) => root.querySelector(`[data-action=${action}]`).addEventListener("click", fn);
+    };
+    const on = (action, fn) => {
+      root.querySelector(`[data-action=${action}]`).onclick = fn;
+    };
     on("trend-pan-left", () => this.pan(-0.5));
     on("trend-pan-right", () => this.pan(0.5));
     on("trend-zoom-in", () => this.zoom(0.5));
@@ -52,12 +56,16 @@ export class Trend {
     on("export-csv", () => this.exportCsv());
     on("export-png", () => this.exportPng());
     this.timer = setInterval(() => this.redraw(), 500);
-    new ResizeObserver(() => this.chart?.setSize(this.size())).observe(this.box);
+    this.resize = new ResizeObserver(() => this.chart?.setSize(this.size()));
+    this.resize.observe(this.box);
   }
 
   dispose() {
     clearInterval(this.timer);
+    this.resize.disconnect();
     this.chart?.destroy();
+    this.chart = null;
+    this.paths = [];
   }
 
   /** Offer ``paths`` in the picker (the ones the store knows). */
