@@ -172,6 +172,8 @@ class UserHub:
         self.up: dict[str, bool] = {}
         self.reasons: dict[str, str] = {}
         self._poller: asyncio.Task[None] | None = None
+        self._connecting: dict[str, asyncio.Task[bool]] = {}
+        """A tier's reconnection in progress (one at a time per link; the poll never waits on it)."""
         self._polled = asyncio.Event()
         self._lock = asyncio.Lock()
 
@@ -207,16 +209,37 @@ class UserHub:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
+        connecting, self._connecting = list(self._connecting.values()), {}
+        for t in connecting:
+            t.cancel()
+        for t in connecting:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await t
         for link in self.links.values():
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(link.close(), 2.0)
 
-    async def _link(self, tier: str) -> Link | None:
-        """The tier's link, reconnected if its attempt is due; None while it is away."""
+    def _reconnect(self, tier: str) -> asyncio.Task[bool]:
+        """The tier's reconnection: the one in progress, else a new attempt (``Link.ensure``:
+        made only when its backoff says it is due)."""
+        task = self._connecting.get(tier)
+        if task is None or task.done():
+            task = self._connecting[tier] = asyncio.get_running_loop().create_task(self.links[tier].ensure())
+        return task
+
+    async def _link(self, tier: str, *, wait: bool = False) -> Link | None:
+        """The tier's link; None while it is away. A link that is down is reconnected in the
+        background (a poll never waits on a tier that does not answer: the other tiers' values
+        keep coming), or, with ``wait`` (a command), awaited (bounded by the link's timeout)."""
         link = self.links.get(tier)
         if link is None:
             return None
-        if await link.ensure():
+        if not link.healthy:
+            task = self._reconnect(tier)
+            if wait:
+                with contextlib.suppress(Exception):
+                    await asyncio.shield(task)
+        if link.healthy:
             self._mark(tier, True, "")
             return link
         self._mark(tier, False, link.last_error)
@@ -389,7 +412,7 @@ class UserHub:
     # ---- commands -------------------------------------------------------------------------
 
     async def _require(self, tier: str) -> Link:
-        link = await self._link(tier)
+        link = await self._link(tier, wait=True)
         if link is None:
             raise UnreachableError(tier, self.urls.get(tier, "?"), self.reasons.get(tier) or "no session")
         return link
