@@ -412,6 +412,8 @@ class UserHub:
     # ---- commands -------------------------------------------------------------------------
 
     async def _require(self, tier: str) -> Link:
+        if tier not in self.links:
+            raise UnreachableError(tier, "-", "no endpoint for it (--no-historian)")
         link = await self._link(tier, wait=True)
         if link is None:
             raise UnreachableError(tier, self.urls.get(tier, "?"), self.reasons.get(tier) or "no session")

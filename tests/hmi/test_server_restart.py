@@ -47,6 +47,11 @@ async def test_a_supervisor_restart_is_a_link_down_and_up_and_the_screen_keeps_g
             r = await b.post("/api/login", json={"user": "engineer", "password": TEST_PASSWORDS["engineer"]})
             assert r.status_code == 200
             b.headers["X-CSRF-Token"] = r.json()["csrf"]
+            # Without a historian: the site says so, and a trend is 503 saying why.
+            assert (await b.get("/api/site")).json()["historian"] is False
+            span = {"path": [paths.plc.loop("LIC1").pv], "start": 1, "end": 2}
+            trend = await b.get("/api/trend", params=span)
+            assert trend.status_code == 503 and "--no-historian" in trend.json()["error"]
             cookie = f"tanklab_hmi={b.cookies['tanklab_hmi']}"
             async with connect(
                 url.replace("http", "ws") + "/ws", additional_headers={"Cookie": cookie}
