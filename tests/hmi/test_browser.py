@@ -15,6 +15,7 @@ own answers: the status codes they return, the values they publish back to the s
   shows it acknowledged;
 - an Observer finds every control disabled, and a forged write (the page's own session and CSRF
   token) is refused by the tier with BadUserAccessDenied, a request without the token with 403;
+- the keyboard opens a faceplate (a focused mimic element and Enter);
 - an Engineer may reset LIC1's gains (an Operator may not: the button is disabled) and sees the
   supervisor's faceplate with the MPC's plan drawn.
 The one- and two-tank sites' mimics are in test_browser_sites.py.
@@ -30,6 +31,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from selenium.webdriver.common.action_chains import ActionChains
+from selenium.webdriver.common.keys import Keys
 
 from helpers import TEST_PASSWORDS
 from hmi_browser import Browser, HmiStack, browser
@@ -178,6 +181,13 @@ def test_operator_acknowledges_the_leak_alarm_with_a_comment(page: Browser, stac
     page.wait(lambda: page.all("#alarm-history tbody tr"), 60, "the alarm history")
     assert any("T1Level" in tr.text for tr in page.all("#alarm-history tbody tr"))
 
+    # the row's source opens its faceplate (the tank's, for the level alarm)
+    page.faceplate("loop:LIC1", "LIC1-bubble")
+    page.css(f"{row} [data-action=goto]").click()
+    page.wait(
+        lambda: page.css("#faceplate").get_attribute("data-faceplate") == "tank:T1", 10, "T1 from the row"
+    )
+
     # back to normal operation for the next tests
     assert page.enter("leak-input", "leak-apply", "0") == "Good"
     page.faceplate("loop:LIC1", "LIC1-bubble")
@@ -213,6 +223,12 @@ def test_observer_sees_every_control_disabled_and_a_forged_write_is_refused(page
 
 def test_engineer_resets_gains_and_sees_the_mpc_plan(page: Browser) -> None:
     login(page, "engineer")
+    # the keyboard reaches the mimic: a focused element opens its faceplate with Enter
+    page.js("document.getElementById('T2-vessel').focus()")
+    ActionChains(page.driver).send_keys(Keys.ENTER).perform()
+    page.wait(
+        lambda: page.css("#faceplate").get_attribute("data-faceplate") == "tank:T2", 10, "tank:T2 by Enter"
+    )
     page.faceplate("loop:LIC1", "LIC1-bubble")
     reset = page.action("reset-gains")
     assert reset.is_enabled()

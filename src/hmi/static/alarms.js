@@ -116,11 +116,13 @@ export class Alarms {
     if (res.ok) this.drafts.delete(a.id);
   }
 
+  /** Open the faceplate of an alarm's source: a loop (LIC1), a transmitter (LT1: its tank's), a
+   * tank (T1), bare or as a path (PLC.LIC1, PLC.IO.LT1, PLC.T1); the supervisor's otherwise. */
   goto(a) {
-    const m = /^(?:PLC|Plant)\.(T\d+|LIC\d+|IO\.LT(\d+))/.exec(a.source || "");
-    if (!m) return;
-    if (m[2]) this.hooks.openFaceplate(`tank:T${m[2]}`);
-    else this.hooks.openFaceplate(m[1].startsWith("LIC") ? `loop:${m[1]}` : `tank:${m[1]}`);
+    const m = /(?:^|\.)(LIC\d+|LT(\d+)|T\d+)(?:$|\.)/.exec(a.source || "");
+    if (m && m[2]) this.hooks.openFaceplate(`tank:T${m[2]}`);
+    else if (m) this.hooks.openFaceplate(m[1].startsWith("LIC") ? `loop:${m[1]}` : `tank:${m[1]}`);
+    else if (a.tier === "supervisor") this.hooks.openFaceplate("supervisor");
   }
 
   focusTop() {
