@@ -101,6 +101,9 @@ def test_operator_changes_the_setpoint_and_the_level_trend_follows(page: Browser
     # the level moves toward the new setpoint: seen on the faceplate, then in the exported trend
     page.wait(lambda: (page.bar_value("PV") or 0) > 0.42, 120, "PV rising toward 0.45 m")
     page.screenshot("overview")
+    # the page's own latency samples (source timestamp to DOM update, one clock: this machine's)
+    latency = page.js("return window.tanklabHmi.parts.latency")
+    assert latency and min(latency) > -0.05, latency[:10]
     page.css("#trend-pane [data-action=export-csv]").click()
     rows = list(csv.DictReader(io.StringIO(page.downloaded(".csv").read_text(encoding="utf-8"))))
     assert rows and set(rows[0]) >= {"time_epoch_s", "PLC.LIC1.PV", "PLC.LIC1.SP"}

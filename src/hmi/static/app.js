@@ -56,7 +56,7 @@ async function start(session) {
   $("#main-view").hidden = false;
   $("#open-supervisor").hidden = !site.supervisor;
 
-  const parts = { session, site, closing: false, socket: null, retry: null, delay: 500, subscribed: new Set() };
+  const parts = { session, site, closing: false, socket: null, retry: null, delay: 500, subscribed: new Set(), latency: [], seenValues: false };
   app = parts;
   window.tanklabHmi = { store, parts }; // for the browser's console
   parts.faceplates = new Faceplates($("#faceplate"), site, store, session, { trend: (paths) => parts.trend.show(paths) });
@@ -81,6 +81,14 @@ async function start(session) {
   if (first) parts.trend.show([`PLC.${first.name}.PV`, `PLC.${first.name}.SP`]);
   connect(parts);
   document.body.dataset.state = "ready";
+}
+
+/** Seconds from each value's source timestamp to the end of the DOM update that showed it
+ * (the latest 5000, for the browser's console and the latency benchmark). */
+function recordLatency(samples, values) {
+  const now = (performance.timeOrigin + performance.now()) / 1000;
+  for (const item of Object.values(values)) if (typeof item?.t === "number") samples.push(now - item.t);
+  if (samples.length > 5000) samples.splice(0, samples.length - 5000);
 }
 
 function subscribe(parts, paths) {
@@ -121,9 +129,13 @@ function connect(parts) {
     switch (msg.type) {
       case "hello":
         break;
-      case "values":
-        store.update(msg.values || {});
+      case "values": {
+        const values = msg.values || {};
+        store.update(values); // the views redraw synchronously
+        if (parts.seenValues) recordLatency(parts.latency, values);
+        parts.seenValues = true; // the first message carries every value, old ones too
         break;
+      }
       case "alarms":
         parts.alarms.set(msg.alarms);
         break;
