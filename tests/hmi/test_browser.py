@@ -18,7 +18,8 @@ own answers: the status codes they return, the values they publish back to the s
 - the keyboard opens a faceplate (a focused mimic element and Enter);
 - an Engineer may reset LIC1's gains (an Operator may not: the button is disabled) and sees the
   supervisor's faceplate with the MPC's plan drawn.
-The one- and two-tank sites' mimics are in test_browser_sites.py.
+The one- and two-tank sites' mimics are in test_browser_sites.py, a tier's restart in
+test_browser_restart.py.
 """
 
 from __future__ import annotations
