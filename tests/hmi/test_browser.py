@@ -239,6 +239,39 @@ def test_engineer_resets_gains_and_sees_the_mpc_plan(page: Browser) -> None:
     page.js("arguments[0].textContent = ''", page.field("status"))
     reset.click()
     assert page.wait(lambda: page.field("status").text, 30, "reset-gains status") == "Good"
+
+    # the trend zooms and pans (and stops following the present), "Live" follows it again
+    def span() -> float:
+        return float(page.js("const x = window.tanklabHmi.parts.trend.chart.scales.x; return x.max - x.min"))
+
+    live = page.css("#trend-pane [data-action=trend-live]")
+    assert span() == pytest.approx(300, abs=2)  # the default 5 min
+    page.css("#trend-pane [data-action=trend-zoom-in]").click()  # redrawn once history is in
+    page.wait(lambda: span() == pytest.approx(150, abs=2), 10, "half the range shown")
+    assert live.get_attribute("aria-pressed") == "false"
+    left = float(page.js("return window.tanklabHmi.parts.trend.chart.scales.x.min"))
+    page.css("#trend-pane [data-action=trend-pan-left]").click()
+    page.wait(
+        lambda: (
+            page.js("return window.tanklabHmi.parts.trend.chart.scales.x.min")
+            == pytest.approx(left - 75, abs=2)
+        ),
+        10,
+        "the range moved back by half its width",
+    )
+    assert span() == pytest.approx(150, abs=2)
+    live.click()
+    page.wait(lambda: span() == pytest.approx(300, abs=2), 10, "the live 5 min again")
+    assert live.get_attribute("aria-pressed") == "true"
+    over = page.css("#trend .u-over")  # a dragged quarter of the plot zooms to it
+    width = over.size["width"]
+    ActionChains(page.driver).move_to_element_with_offset(
+        over, -width // 4, 0
+    ).click_and_hold().move_by_offset(width // 4, 0).release().perform()
+    page.wait(lambda: span() == pytest.approx(75, rel=0.1), 10, "the dragged range shown")
+    assert live.get_attribute("aria-pressed") == "false"
+    live.click()
+
     page.css("#open-supervisor").click()
     page.wait(
         lambda: page.css("#faceplate").get_attribute("data-faceplate") == "supervisor", 10, "supervisor"
