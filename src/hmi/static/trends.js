@@ -12,6 +12,7 @@ import { el } from "./store.js";
 const COLOURS = ["#1f4e79", "#c55a11", "#548235", "#7030a0", "#bf9000", "#2e75b6", "#a50021", "#3b3838"];
 const FLOW_LEAVES = ["MV", "ManualMV", "RemoteMV", "Command", "Flow", "Disturbance"];
 const MAX_POINTS = 20000;
+const MAX_HISTORY_PATHS = 32;
 const stepped = uPlot.paths.stepped({ align: 1 });
 
 function scaleOf(path) {
@@ -108,13 +109,18 @@ export class Trend {
     if (!paths.length) return;
     const { min, max } = this.range();
     this.status.textContent = "loading history…";
-    const { status, body } = await getJson(`/api/trend?${query({ path: paths, start: min.toFixed(3), end: max.toFixed(3), points: 2000 })}`);
+    // the server reads the history of at most MAX_HISTORY_PATHS paths at once (HMI contract notes)
+    const asked = paths.slice(0, MAX_HISTORY_PATHS);
+    const { status, body } = await getJson(`/api/trend?${query({ path: asked, start: min.toFixed(3), end: max.toFixed(3), points: 2000 })}`);
     if (paths !== this.paths) return;
     if (status !== 200) {
       this.status.textContent = `history not available: ${body.error || `HTTP ${status}`} (live values only)`;
       for (const p of paths) if (!this.buffers.has(p)) this.buffers.set(p, { t: [], v: [] });
     } else {
-      this.status.textContent = body.aggregate ? `history: ${body.aggregate} over ${paths.length} tag(s)` : "";
+      const notes = [];
+      if (body.aggregate) notes.push(`history: ${body.aggregate}`);
+      if (asked.length < paths.length) notes.push(`history of the first ${asked.length} tags only`);
+      this.status.textContent = notes.join("; ");
       for (const p of paths) {
         const hist = body.series?.[p] || { t: [], v: [] };
         const live = this.buffers.get(p) || { t: [], v: [] };
