@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import socket
 from collections.abc import Generator, Mapping
@@ -16,6 +17,7 @@ from collections.abc import Generator, Mapping
 import uvicorn
 
 from hmi.app import HmiState, create_app
+from hmi.hub import POLL_S, UserHub
 from hmi.sessions import SessionTable
 from hmi.site import SiteModel
 from tanklab.config import SiteConfig
@@ -45,13 +47,21 @@ async def run_hmi(
     stop: asyncio.Event,
     ready: asyncio.Event | None = None,
     idle_timeout_s: float = 900.0,
+    poll_s: float = POLL_S,
 ) -> None:
     """Serve the HMI of ``site`` at http://HOST:PORT until ``stop`` is set.
 
     ``urls``: the tiers' endpoints by tier (plant, plc, supervisor, historian); ``ready`` is set
-    once the socket listens. Raises OSError when the port cannot be bound.
+    once the socket listens; ``poll_s`` is the poll of the live set [s] (:mod:`hmi.hub`). Raises
+    OSError when the port cannot be bound.
     """
-    state = HmiState(SiteModel.of(site), dict(urls), home, SessionTable(idle_timeout_s))
+    state = HmiState(
+        SiteModel.of(site),
+        dict(urls),
+        home,
+        SessionTable(idle_timeout_s),
+        hub_factory=functools.partial(UserHub, poll_s=poll_s),
+    )
     config = uvicorn.Config(
         create_app(state),
         host=host,

@@ -586,6 +586,10 @@ def hmi(
     idle_timeout: Annotated[
         float, typer.Option(help="Seconds after which an idle login session is closed.")
     ] = 900.0,
+    poll_interval: Annotated[
+        float,
+        typer.Option(help="Seconds between two Reads of the live set per tier (0.05 .. 0.5)."),
+    ] = 0.1,
     home: HomeOpt = None,
 ) -> None:
     """Serve the browser HMI at http://HOST:PORT (docs/hmi.md): mimic, faceplates, trends, alarms.
@@ -608,6 +612,8 @@ def hmi(
         raise fail(f"--port must be 1..65535, got {p}")
     if not idle_timeout > 0:
         raise fail(f"--idle-timeout must be > 0, got {idle_timeout}")
+    if not 0.05 <= poll_interval <= 0.5:
+        raise fail(f"--poll-interval must be 0.05 .. 0.5 s, got {poll_interval}")
     if site.plc is None:
         raise fail("the HMI needs a site with a PLC program (plc section)")
     try:
@@ -643,6 +649,7 @@ def hmi(
             stop=stop,
             ready=ready,
             idle_timeout_s=idle_timeout,
+            poll_s=poll_interval,
         )
 
     shown = f"[{bind}]" if ":" in bind else bind

@@ -68,3 +68,25 @@ def test_up_preflight_refuses_a_taken_hmi_port(tmp_path: Path) -> None:
     bad = run_up(base, base + 1, tmp_path)
     assert bad.returncode == 2 and "is one of the tiers' ports" in bad.stderr, bad.stderr
     assert not (tmp_path / "var").exists()  # nothing started, nothing written
+
+
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (["--port", "0"], "tankctl: --port must be 1..65535, got 0"),
+        (["--poll-interval", "5"], "tankctl: --poll-interval must be 0.05 .. 0.5 s, got 5.0"),
+        (["--idle-timeout", "0"], "tankctl: --idle-timeout must be > 0, got 0.0"),
+        (["--plc-url", "http://x"], "tankctl: --plc-url: "),
+    ],
+)
+def test_hmi_bad_options_are_one_line_and_exit_2(args: list[str], line: str) -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "tankctl", "hmi", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+        check=False,
+    )
+    assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+    assert r.stderr.startswith(line) and r.stderr.count("\n") == 1, r.stderr
