@@ -50,7 +50,9 @@ typecheck: venv
 # running as root with apt-get (no daemon is started by the package here); otherwise say so, and
 # those tests skip. postgresql-15: the binaries (initdb, pg_ctl) of the throw-away cluster the
 # historian's store tests run on (tanklab_testing.postgres); those tests fail without them, never
-# skip, so this target must install them.
+# skip, so this target must install them. chromium and chromium-driver: the headless browser
+# (/usr/bin/chromium, driven through /usr/bin/chromedriver by Selenium) of the HMI's browser tests,
+# tests/hmi/test_browser*.py (no browser download); those tests fail without them, never skip.
 PG_BIN := /usr/lib/postgresql/15/bin
 
 tools:
@@ -59,14 +61,16 @@ tools:
 	command -v dockerd >/dev/null 2>&1 || missing="$$missing docker.io"; \
 	command -v debootstrap >/dev/null 2>&1 || missing="$$missing debootstrap"; \
 	[ -x $(PG_BIN)/initdb ] && [ -x $(PG_BIN)/pg_ctl ] || missing="$$missing postgresql-15"; \
+	[ -x /usr/bin/chromium ] || missing="$$missing chromium"; \
+	[ -x /usr/bin/chromedriver ] || missing="$$missing chromium-driver"; \
 	if [ -z "$$missing" ]; then :; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	  echo "make tools: installing$$missing (Debian packages) for the Docker and historian store tests"; \
+	  echo "make tools: installing$$missing (Debian packages) for the Docker, historian store and HMI browser tests"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
 	    apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	else \
 	  echo "make tools:$$missing missing and cannot be installed (needs root and apt-get);" \
-	       "the Docker tests will skip and say why, the historian store tests will fail"; \
+	       "the Docker tests will skip and say why, the historian store and HMI browser tests will fail"; \
 	fi
 	@$(MAKE) --no-print-directory node-tools
 

@@ -232,7 +232,18 @@ async def operator_commands(log_dir: Path, repeats: int, log: Callable[[str], No
     via_relay = {"XDG_RUNTIME_DIR": str(relayed)}
     up = bench_process(
         "up",
-        ["up", *where, "--clock", "realtime", "--speed", "1", "--no-board", "--log-dir", str(run_dir)],
+        [
+            "up",
+            *where,
+            "--clock",
+            "realtime",
+            "--speed",
+            "1",
+            "--no-board",
+            "--no-hmi",
+            "--log-dir",
+            str(run_dir),
+        ],
         run_dir / "up.out",
         banner=False,
         env_extra=via_relay,

@@ -200,7 +200,7 @@ class Bench:
         self.up = bench_process(
             "up",
             [
-                *("up", "--config", str(self.config), "--speed", f"{SPEED:g}", "--no-board"),
+                *("up", "--config", str(self.config), "--speed", f"{SPEED:g}", "--no-board", "--no-hmi"),
                 *("--base-port", str(self.base), "--log-dir", str(work / "var")),
             ],
             work / "up.out",

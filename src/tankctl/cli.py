@@ -59,6 +59,7 @@ class TankctlGroup(LazyGroup):
         "plc",
         "supervisor",
         "historian",
+        "hmi",
         "up",
         "config",
         "tune",
@@ -563,6 +564,101 @@ def historian(
 
 
 @app.command()
+def hmi(
+    config: ConfigOpt = None,
+    host: Annotated[
+        str | None, typer.Option(help="Address to bind (env TANKLAB_HMI_HOST; default 127.0.0.1).")
+    ] = None,
+    port: Annotated[int | None, typer.Option(help="HTTP port (env TANKLAB_HMI_PORT; default 8080).")] = None,
+    base_port: Annotated[
+        int | None,
+        typer.Option(help="The tiers at ports N..N+3 on 127.0.0.1 (env TANKLAB_BASE_PORT)."),
+    ] = None,
+    plant_url: Annotated[str | None, typer.Option(help="Plant endpoint (env TANKLAB_PLANT_URL).")] = None,
+    plc_url: Annotated[str | None, typer.Option(help="PLC endpoint (env TANKLAB_PLC_URL).")] = None,
+    supervisor_url: Annotated[
+        str | None, typer.Option(help="Supervisor endpoint (env TANKLAB_SUPERVISOR_URL).")
+    ] = None,
+    historian_url: Annotated[
+        str | None, typer.Option(help="Historian endpoint (env TANKLAB_HISTORIAN_ENDPOINT).")
+    ] = None,
+    no_historian: Annotated[
+        bool, typer.Option("--no-historian", help="No historian: no trends from history.")
+    ] = False,
+    idle_timeout: Annotated[
+        float, typer.Option(help="Seconds after which an idle login session is closed.")
+    ] = 900.0,
+    poll_interval: Annotated[
+        float,
+        typer.Option(help="Seconds between two Reads of the live set per tier (0.05 .. 0.5)."),
+    ] = 0.1,
+    home: HomeOpt = None,
+) -> None:
+    """Serve the browser HMI at http://HOST:PORT (docs/hmi.md): mimic, faceplates, trends, alarms.
+
+    Each user logs in with their own tanklab account: the HMI opens that user's own OPC UA
+    sessions to the tiers (with the CLI certificate of the security home), so the tiers check the
+    password, enforce the role and audit the user. Loopback by default."""
+    from tankctl.ops.errors import UsageError
+    from tankctl.ops.stack import resolve_endpoints
+    from tanklab_io.home import SecurityHome, default_home
+
+    site = load(resolve_config(config))
+    bind = host or _env("TANKLAB_HMI_HOST") or "127.0.0.1"
+    env_port = _env("TANKLAB_HMI_PORT")
+    try:
+        p = port if port is not None else int(env_port) if env_port else 8080
+    except ValueError:
+        raise fail(f"TANKLAB_HMI_PORT must be a port number, got {env_port!r}") from None
+    if not 1 <= p <= 65535:
+        raise fail(f"--port must be 1..65535, got {p}")
+    if not idle_timeout > 0:
+        raise fail(f"--idle-timeout must be > 0, got {idle_timeout}")
+    if not 0.05 <= poll_interval <= 0.5:
+        raise fail(f"--poll-interval must be 0.05 .. 0.5 s, got {poll_interval}")
+    if site.plc is None:
+        raise fail("the HMI needs a site with a PLC program (plc section)")
+    try:
+        endpoints = resolve_endpoints(
+            site,
+            urls={
+                "plant": plant_url,
+                "plc": plc_url,
+                "supervisor": supervisor_url,
+                "historian": historian_url,
+            },
+            env=os.environ,
+            base_port=base_port,
+        )
+    except UsageError as e:
+        raise fail(str(e)) from None
+    urls: dict[str, str] = {str(tier): url for tier, url in endpoints.items()}
+    if site.supervisor is None:
+        urls.pop("supervisor", None)
+    if no_historian:
+        urls.pop("historian", None)
+    security = SecurityHome(home or default_home())
+
+    async def runner(stop: asyncio.Event, ready: asyncio.Event) -> None:
+        from hmi.runtime import run_hmi
+
+        await run_hmi(
+            site,
+            host=bind,
+            port=p,
+            urls=urls,
+            home=security,
+            stop=stop,
+            ready=ready,
+            idle_timeout_s=idle_timeout,
+            poll_s=poll_interval,
+        )
+
+    shown = f"[{bind}]" if ":" in bind else bind
+    serve("hmi", f"hmi: {site.name} at http://{shown}:{p} (plc {urls['plc']})", runner)
+
+
+@app.command()
 def up(
     config: ConfigOpt = None,
     speed: SpeedOpt = None,
@@ -580,6 +676,10 @@ def up(
     ] = Path("var"),
     host: Annotated[str, typer.Option(help="Address the tiers bind and are reached at.")] = "127.0.0.1",
     home: HomeOpt = None,
+    hmi_port: Annotated[
+        int, typer.Option(help="The browser HMI's HTTP port on --host (http://HOST:PORT).")
+    ] = 8080,
+    no_hmi: Annotated[bool, typer.Option("--no-hmi", help="Do not start the browser HMI.")] = False,
     fresh: Annotated[
         bool,
         typer.Option(
@@ -588,7 +688,7 @@ def up(
         ),
     ] = False,
 ) -> None:
-    """Start plant, PLC, supervisor and historian as child processes and show a live board.
+    """Start plant, PLC, supervisor, historian and the browser HMI as child processes and show a live board.
 
     Before starting anything it checks that every port is free, that no stack runs from the
     same log directory and that the PKI is complete; on first use it creates the PKI and an
@@ -609,6 +709,10 @@ def up(
         raise fail(f"--clock must be realtime or lockstep, got {clock!r}")
     if not 1 <= base_port <= 65532:
         raise fail(f"--base-port must be 1..65532, got {base_port}")
+    if not 1 <= hmi_port <= 65535:
+        raise fail(f"--hmi-port must be 1..65535, got {hmi_port}")
+    if not no_hmi and base_port <= hmi_port <= base_port + 3:
+        raise fail(f"--hmi-port {hmi_port} is one of the tiers' ports {base_port}..{base_port + 3}")
     spd = resolve_speed(speed)
     stack = LocalStack(
         site,
@@ -619,6 +723,7 @@ def up(
         log_dir / site.name,
         host=host,
         home=SecurityHome(home or default_home()),
+        hmi_port=None if no_hmi else hmi_port,
     )
     try:
         notes = stack.preflight(sorted({"localhost", "127.0.0.1", host, socket.gethostname()}))

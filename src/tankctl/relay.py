@@ -31,12 +31,12 @@ from typing import Any
 
 from asyncua import ua
 
-from tankctl.ops.errors import LOGIN_REFUSALS, describe_failure
+from tankctl.ops.errors import describe_failure
 from tankctl.relay_client import MAX_LINE_BYTES, PROTOCOL, pointer, unix_address
 from tanklab.errors import LinkError
 from tanklab.tags import DataType
 from tanklab_io.home import SecurityHome
-from tanklab_io.ua_client import ConnectError, Link
+from tanklab_io.ua_client import ConnectError, Link, refused_login
 from tanklab_io.ua_client_security import ClientIdentity, client_setup
 from tanklab_io.ua_values import python_value, stored_variant
 from tanklab_io.users import Credentials
@@ -203,11 +203,9 @@ class Relay:
             await link.connect()
         except ConnectError as e:
             self.sessions.pop(key, None)  # a refused login is never cached
-            cause = e.cause
-            if isinstance(cause, ua.UaStatusCodeError) and ua.StatusCode(cause.code).name in LOGIN_REFUSALS:
-                raise _RefusedError(
-                    {"ok": False, "error": "login", "status": ua.StatusCode(cause.code).name}
-                ) from None
+            status = refused_login(e)
+            if status is not None:
+                raise _RefusedError({"ok": False, "error": "login", "status": status}) from None
             raise _RefusedError({"ok": False, "error": "unreachable", "reason": _connect_reason(e)}) from None
         if s is not None:
             self.say(f"relay: {tier} session of {user!r} open again")

@@ -234,9 +234,9 @@ def pki_containers(
     ] = CONTAINER_UID,
     gid: Annotated[int, typer.Option(help="Group of the copies: the image's group.")] = CONTAINER_GID,
 ) -> None:
-    """Lay out HOME/containers/{plant,plc,supervisor,historian}: each tier's certificates, trust
-    list, CRL, users file and only its own key, owned by the container's user; docker-compose.yml
-    mounts them.
+    """Lay out HOME/containers/{plant,plc,supervisor,historian,hmi}: each tier's certificates, trust
+    list, CRL, users file and only its own key (the HMI's: the CLI's), owned by the container's
+    user; docker-compose.yml mounts them.
 
     Run it again after `pki init --force`, `pki revoke` or `user add`: it replaces the copies.
     """

@@ -71,7 +71,11 @@ __all__ = [
 ]
 
 TIERS = ("plant", "plc", "supervisor", "historian")
-"""Every process ``up`` starts, bottom-up and in port order (base port + index)."""
+"""Every OPC UA tier ``up`` starts, bottom-up and in port order (base port + index)."""
+PROCESSES = (*TIERS, "hmi")
+"""Every process ``up`` starts, in start order: the tiers, then the HMI (``--hmi-port``)."""
+HMI_PORT = 8080
+"""The HMI's default HTTP port (``--hmi-port``)."""
 READY_TIMEOUT_S = 60.0
 """How long a started tier gets to answer its first OPC UA read."""
 STOP_BOUND_S = 10.0
@@ -122,6 +126,8 @@ class LocalStack:
     say: Callable[[str], None] = print
     tiers: dict[str, Tier] = field(default_factory=dict)
     identity: ClientIdentity | None = None
+    hmi_port: int | None = HMI_PORT
+    """The HMI's HTTP port on ``host``; None: no HMI (``--no-hmi``)."""
 
     def __post_init__(self) -> None:
         urls = {t: f"opc.tcp://{self.host}:{self.base_port + i}/tanklab/{t}" for i, t in enumerate(TIERS)}
@@ -190,6 +196,27 @@ class LocalStack:
             self.base_port + 3,
             self.log_dir / "historian.log",
         )
+        if self.hmi_port is not None:
+            shown = f"[{self.host}]" if ":" in self.host else self.host
+            hmi_urls = [*below, "--historian-url", urls["historian"]]
+            self.tiers["hmi"] = Tier(
+                "hmi",
+                [
+                    "hmi",
+                    "--config",
+                    str(self.config_path),
+                    "--host",
+                    self.host,
+                    "--port",
+                    str(self.hmi_port),
+                    "--home",
+                    str(self.home.root),
+                    *hmi_urls,
+                ],
+                f"http://{shown}:{self.hmi_port}",
+                self.hmi_port,
+                self.log_dir / "hmi.log",
+            )
 
     # ---- files ----------------------------------------------------------------------------
 
@@ -220,7 +247,7 @@ class LocalStack:
         return self.log_dir / "up.pid"
 
     def pid_files(self) -> list[Path]:
-        return [self.pid_path, *(self.log_dir / f"{t}.pid" for t in TIERS)]
+        return [self.pid_path, *(self.log_dir / f"{t}.pid" for t in PROCESSES)]
 
     # ---- preflight ------------------------------------------------------------------------
 
@@ -365,7 +392,7 @@ class LocalStack:
         the supervisor's first heartbeat, so the supervisor is started right after the PLC has
         started listening.
         """
-        for name in TIERS:
+        for name in PROCESSES:
             tier = self.tiers.get(name)
             if tier is None:
                 continue
@@ -394,6 +421,9 @@ class LocalStack:
         return probe.done() and not probe.cancelled()
 
     async def _probe(self, tier: Tier) -> None:
+        if tier.name == "hmi":
+            await self._probe_http(tier)
+            return
         path = paths.PROBE_PATHS[tier.name]
         builders = {
             "plant": plant_tags,
@@ -425,6 +455,25 @@ class LocalStack:
         finally:
             await link.close()
 
+    async def _probe_http(self, tier: Tier) -> None:
+        """Until the HMI answers ``GET /healthz`` with 200 (its tiers need not all be up)."""
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while True:
+            if not tier.running:
+                await tier.wait(1.0)
+                raise StartError(
+                    f"{tier.name} exited during start-up (exit {tier.exit_code}): {tier.reason()}"
+                    f"; log {tier.log_path}"
+                )
+            if await _healthz_ok(self.host, tier.port):
+                return
+            if time.monotonic() > deadline:
+                raise StartError(
+                    f"{tier.name} did not answer at {tier.url}/healthz within {READY_TIMEOUT_S:.0f} s"
+                    f"; log {tier.log_path}"
+                )
+            await asyncio.sleep(0.1)
+
     # ---- run and stop ---------------------------------------------------------------------
 
     def dead(self) -> list[Tier]:
@@ -445,6 +494,9 @@ class LocalStack:
         t0 = time.monotonic()
         stop_started = time.time()
         started = [t for t in self.tiers.values() if t.proc is not None]
+        hmi = self.tiers.get("hmi")
+        if hmi is not None:  # first: its users' sessions close while the tiers still answer
+            hmi.signal(signal.SIGTERM)
         plc = self.tiers.get("plc")
         if plc is not None and plc.running:
             plc.signal(signal.SIGTERM)
@@ -541,7 +593,9 @@ async def run_stack(
             why = f"{cause()} during start-up"
             return code
         pids = ", ".join(f"{t.name} {t.proc.pid}" for t in stack.tiers.values() if t.proc is not None)
-        relay = Relay({t.name: t.url for t in stack.tiers.values()}, stack.home, stack.log_dir, say)
+        relay = Relay(
+            {t.name: t.url for t in stack.tiers.values() if t.name in TIERS}, stack.home, stack.log_dir, say
+        )
         try:
             await relay.start()
             served = f"command relay: {relay.path}"
@@ -645,3 +699,21 @@ def run_up(
         return await main(signals.stop, signals.first)
 
     return asyncio.run(runner())
+
+
+async def _healthz_ok(host: str, port: int, timeout_s: float = 2.0) -> bool:
+    """Whether ``http://HOST:PORT/healthz`` answers 200 within ``timeout_s``."""
+    try:
+        async with asyncio.timeout(timeout_s):
+            reader, writer = await asyncio.open_connection(host, port)
+            try:
+                writer.write(f"GET /healthz HTTP/1.0\r\nHost: {host}:{port}\r\n\r\n".encode())
+                await writer.drain()
+                status = await reader.readline()
+            finally:
+                writer.close()
+                with contextlib.suppress(Exception):
+                    await writer.wait_closed()
+    except (OSError, TimeoutError):
+        return False
+    return status.split(b" ")[1:2] == [b"200"]

@@ -36,3 +36,10 @@ class SecurityError(TanklabError, ValueError):
     ``~/.config/tanklab/credentials: permissions 0644: must be 0600 (chmod 600 FILE)``; it never
     contains a password or key material.
     """
+
+
+LOGIN_REFUSALS = frozenset({"BadUserAccessDenied", "BadIdentityTokenRejected", "BadIdentityTokenInvalid"})
+"""What a server answers a refused ActivateSession with (asyncua raises them as
+``UaStatusCodeError`` subclasses from ``Client.connect``): tanklab's user manager answers
+BadUserAccessDenied to a wrong password, an unknown name and a locked account alike (so that
+a refusal tells an attacker nothing), BadIdentityTokenRejected to an anonymous session."""

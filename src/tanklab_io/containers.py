@@ -11,7 +11,9 @@ tier, a complete but minimal copy of the home owned by the container's user::
         pki/own/*.der                0644  every application certificate (public)
         pki/trusted/*                0644  the trust list (the CA's copy, external certs)
         pki/crl/*                    0644  the CRL
-        pki/private/{tier}.pem       0600  this tier's private key, and only this one
+        pki/private/{tier}.pem       0600  this tier's private key, and only this one (the HMI's:
+                                           cli.pem, the client certificate it opens its users'
+                                           sessions with)
         users.json                   0600  the users file (password hashes)
 
 The CA and its private key are never copied: a tier verifies peers against ``trusted/`` and
@@ -35,7 +37,7 @@ from tanklab.errors import SecurityError
 from tanklab_io.home import SecurityHome
 from tanklab_io.pki import write_file
 
-__all__ = ["CONTAINER_GID", "CONTAINER_UID", "TIERS", "ContainerHome", "container_root", "lay_out"]
+__all__ = ["CONTAINER_GID", "CONTAINER_UID", "KEY_OF", "TIERS", "ContainerHome", "container_root", "lay_out"]
 
 CONTAINER_UID = 10001
 """uid of the image's ``tanklab`` user (Dockerfile ``useradd --uid``)."""
@@ -43,8 +45,12 @@ CONTAINER_UID = 10001
 CONTAINER_GID = 10001
 """gid of the image's ``tanklab`` group (Dockerfile ``groupadd --gid``)."""
 
-TIERS = ("plant", "plc", "supervisor", "historian")
-"""The tiers that run as containers (docker-compose.yml's services)."""
+TIERS = ("plant", "plc", "supervisor", "historian", "hmi")
+"""The services that run as containers (docker-compose.yml's services)."""
+
+KEY_OF = {"hmi": "cli"}
+"""A service whose key is another identity's: the HMI is an OPC UA client with the CLI's
+certificate (each user logs in with their own password over it, decision 0047)."""
 
 
 @dataclass(frozen=True)
@@ -130,7 +136,7 @@ def lay_out(
     os.chmod(parent, 0o755)  # only directory names; each tier's directory is 0700
     out = []
     for tier in tiers:
-        key = pki.key_path(tier)
+        key = pki.key_path(KEY_OF.get(tier, tier))
         if not key.is_file():
             raise SecurityError(f"{key}: no private key for tier {tier!r}")
         root = parent / tier

@@ -23,7 +23,7 @@ from typing import Any
 from asyncua import Client, Node, ua
 
 from tanklab.clock import Clock, MonotonicClock
-from tanklab.errors import LinkError
+from tanklab.errors import LOGIN_REFUSALS, LinkError
 from tanklab.tags import NAMESPACE_URI, Tag, link_status_paths
 from tanklab_io.ua_values import variant
 
@@ -203,6 +203,18 @@ class ConnectError(LinkError):
         super().__init__(f"{name} link to {url}: {stage} failed: {describe_error(cause)}")
         self.stage = stage
         self.cause = cause
+
+
+def refused_login(e: ConnectError) -> str | None:
+    """The status code's name when the server refused the session's identity (a wrong password,
+    an unknown or locked user: :data:`tanklab.errors.LOGIN_REFUSALS`), else None (the server
+    was not reached, or failed otherwise)."""
+    cause = e.cause
+    if isinstance(cause, ua.UaStatusCodeError):
+        name = str(ua.StatusCode(cause.code).name)
+        if name in LOGIN_REFUSALS:
+            return name
+    return None
 
 
 class Link:

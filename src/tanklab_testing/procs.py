@@ -377,7 +377,19 @@ class UpProcess(TankctlProcess):
         env: Mapping[str, str] | None = None,
     ) -> None:
         config = config or ROOT / "configs/three_tank_energies_sim.yaml"
-        args = ["up", "--config", str(config), "--base-port", str(base), "--log-dir", str(log_dir), *extra]
+        # No HMI unless asked for (``--hmi-port``): its default port, 8080, is one per machine.
+        hmi = [] if "--hmi-port" in extra else ["--no-hmi"]
+        args = [
+            "up",
+            "--config",
+            str(config),
+            "--base-port",
+            str(base),
+            "--log-dir",
+            str(log_dir),
+            *hmi,
+            *extra,
+        ]
         super().__init__(
             *args,
             ready="started: ",

@@ -82,7 +82,17 @@ async def test_second_up_refuses_busy_ports_and_a_running_run_dir_and_the_first_
         assert set(pids) == {"up.pid", "plant.pid", "plc.pid", "supervisor.pid", "historian.pid"}
 
         def up(*args: str) -> subprocess.CompletedProcess[str]:
-            cmd = [sys.executable, "-m", "tankctl", "up", "--config", str(CONFIG), "--no-board", *args]
+            cmd = [
+                sys.executable,
+                "-m",
+                "tankctl",
+                "up",
+                "--config",
+                str(CONFIG),
+                "--no-board",
+                "--no-hmi",
+                *args,
+            ]
             return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=60, check=False)
 
         # The same ports, another run directory: one line naming the port and the tier.
@@ -249,7 +259,7 @@ async def test_a_tier_dying_later_is_reported_and_the_stack_stopped(tmp_path: Pa
 
 
 def run_up(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    cmd = [sys.executable, "-m", "tankctl", "up", "--no-board", *args]
+    cmd = [sys.executable, "-m", "tankctl", "up", "--no-board", "--no-hmi", *args]
     return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=60, check=False, env=env)
 
 

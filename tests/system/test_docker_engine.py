@@ -1,4 +1,4 @@
-"""The README's Docker section on a real engine: build, four healthy services, restarts, down.
+"""The README's Docker section on a real engine: build, five healthy services, restarts, down.
 
 What runs, in one test (marker ``docker_engine``; ``pytest -m docker_engine`` selects it):
 
@@ -21,7 +21,7 @@ What runs, in one test (marker ``docker_engine``; ``pytest -m docker_engine`` se
    ``COMPOSE_PROJECT_NAME``, free host ports (``TANKLAB_*_HOST_PORT`` for compose and
    ``TANKLAB_BASE_PORT`` for the CLI), the base image, and ``PIP_CERT`` when pip on this host
    trusts a site CA bundle.
-4. **Checks.** After ``up``: four healthy services (plant, plc, supervisor, historian).
+4. **Checks.** After ``up``: five healthy services (plant, plc, supervisor, historian, hmi).
    ``setpoint`` and ``leak`` are read back with ``tankctl status --json``. After ``tankctl
    history``: the historian recorded the new setpoint and the leak (Good, through HistoryRead
    with the host CLI, ``tankctl history --json``) and the PLC's scan counter; the rows up to a
@@ -62,7 +62,7 @@ from typing import Any
 import pytest
 import yaml
 
-from helpers import free_base_port, wait_until, wait_until_sync
+from helpers import free_base_port, free_port, wait_until, wait_until_sync
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
@@ -406,9 +406,9 @@ def _site() -> dict[str, Any]:
 
 async def _after_up(stack: ReadmeShell) -> None:
     await wait_until(
-        lambda: stack.health() == dict.fromkeys(TIERS, "healthy"),
+        lambda: stack.health() == dict.fromkeys((*TIERS, "hmi"), "healthy"),
         300,
-        what="four healthy services",
+        what="five healthy services",
         poll_s=1.0,
     )
     # `up --build` builds first: the build ends when the first container (the plant) is created.
@@ -585,6 +585,7 @@ async def test_readme_docker_section_on_a_real_engine(engine: Engine, tmp_path: 
             "TANKLAB_PLC_HOST_PORT": str(port + 1),
             "TANKLAB_SUPERVISOR_HOST_PORT": str(port + 2),
             "TANKLAB_HISTORIAN_HOST_PORT": str(port + 3),
+            "TANKLAB_HMI_HOST_PORT": str(free_port()),  # the HMI's 8080 is one per machine
             "TANKLAB_BASE_PORT": str(port),
         }
     )

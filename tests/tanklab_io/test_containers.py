@@ -14,7 +14,7 @@ import pytest
 
 from tanklab.errors import SecurityError
 from tanklab.tags import Role
-from tanklab_io.containers import CONTAINER_GID, CONTAINER_UID, TIERS, container_root, lay_out
+from tanklab_io.containers import CONTAINER_GID, CONTAINER_UID, KEY_OF, TIERS, container_root, lay_out
 from tanklab_io.home import SecurityHome
 from tanklab_io.pki import IDENTITIES, init_pki
 from tanklab_io.users import UsersFile
@@ -45,8 +45,9 @@ def test_each_tier_gets_its_own_key_and_the_public_files_owned_by_the_image_user
         assert c.root == container_root(home) / c.tier
         tier_pki = SecurityHome(c.root).pki
         # Only this tier's private key; never the CA's (key or directory).
-        assert sorted(p.name for p in tier_pki.private_dir.iterdir()) == [f"{c.tier}.pem"]
-        assert tier_pki.key_path(c.tier).read_bytes() == pki.key_path(c.tier).read_bytes()
+        key = KEY_OF.get(c.tier, c.tier)  # the HMI's is the CLI's client key
+        assert sorted(p.name for p in tier_pki.private_dir.iterdir()) == [f"{key}.pem"]
+        assert tier_pki.key_path(key).read_bytes() == pki.key_path(key).read_bytes()
         assert not (c.root / "pki" / "ca").exists()
         assert all(b"PRIVATE KEY" not in f.read_bytes() for f in c.files if f.parent.name != "private")
         # Every certificate a tier maps to a role, the trust list, the CRL and the users file.
@@ -62,8 +63,8 @@ def test_each_tier_gets_its_own_key_and_the_public_files_owned_by_the_image_user
             st = path.stat()
             assert (st.st_uid, st.st_gid) == (CONTAINER_UID, CONTAINER_GID), path
         assert _mode(c.root) == 0o700 and _mode(tier_pki.private_dir) == 0o700
-        assert _mode(tier_pki.key_path(c.tier)) == 0o600 and _mode(c.root / "users.json") == 0o600
-        assert _mode(tier_pki.cert_path(c.tier)) == 0o644
+        assert _mode(tier_pki.key_path(key)) == 0o600 and _mode(c.root / "users.json") == 0o600
+        assert _mode(tier_pki.cert_path(key)) == 0o644
         assert set(c.files) == {p for p in c.root.rglob("*") if p.is_file()}
     assert _mode(container_root(home)) == 0o755
     # The host's home is untouched: its keys stay 0600 and owned by the caller.

@@ -25,7 +25,7 @@ import asyncio
 import json
 import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
@@ -41,28 +41,41 @@ from tankctl.ops.run import check_usage, fail, run
 from tankctl.ops.stack import Stack
 from tanklab import paths
 from tanklab.alarms.definitions import plc_alarms, supervisor_alarms
-from tanklab.alarms.model import AlarmDefinition, ConditionKind, Priority, ShelvingState
+from tanklab.alarms.model import AlarmDefinition, ShelvingState
 from tanklab.tags import Tier
+from tanklab_io.ua_alarms import (
+    LIMIT_FIELD,
+    STATE_FIELDS,
+    AlarmRow,
+    child,
+    condition_row,
+    condition_rows,
+    fields_of,
+    priority_name,
+    read_paths,
+)
+
+__all__ = [
+    "LIMIT_FIELD",
+    "STATE_FIELDS",
+    "AlarmRow",
+    "TierAlarms",
+    "child",
+    "condition_row",
+    "condition_rows",
+    "fields_of",
+    "find",
+    "known",
+    "parse_duration_ms",
+    "priority_name",
+    "read_paths",
+    "render_rows",
+]
 
 ALARM_TIERS: tuple[Tier, ...] = ("plc", "supervisor")
 """The tiers with conditions, in the order ``tankctl alarms`` lists them."""
 TIER_NAMES: dict[Tier, str] = {"plant": "plant", "plc": "PLC", "supervisor": "supervisor"}
 """How messages name a tier."""
-
-STATE_FIELDS: tuple[str, ...] = (
-    "EventId",
-    "Severity",
-    "Message",
-    "Time",
-    "Retain",
-    "EnabledState/Id",
-    "ActiveState/Id",
-    "AckedState/Id",
-    "ShelvingState/CurrentState",
-)
-"""The browse paths below a condition that ``tankctl alarms`` reads (Part 9 names)."""
-LIMIT_FIELD = "LimitState/CurrentState"
-"""Read only for an exclusive level alarm (the other kinds have no LimitState)."""
 
 _UNITS_MS = {"ms": 1.0, "s": 1000.0, "m": 60_000.0, "h": 3_600_000.0, "d": 86_400_000.0}
 _PART = re.compile(r"(\d+(?:\.\d+)?)(ms|s|m|h|d)")
@@ -83,126 +96,6 @@ def parse_duration_ms(text: str) -> float:
     if not ms > 0:
         raise UsageError(f"a shelving duration must be longer than 0, got {text!r}")
     return ms
-
-
-def child(name: str, field: str, tier: Tier = "plc") -> str:
-    """The NodeId string of a condition's child (``PLC.Conditions.T1Level.AckedState.Id``,
-    ``Supervisor.Conditions.PlcLinkLost.AckedState.Id``)."""
-    return f"{paths.condition(tier, name)}.{field.replace('/', '.')}"
-
-
-def fields_of(definition: AlarmDefinition) -> tuple[str, ...]:
-    """The state fields read for one condition."""
-    if definition.kind == ConditionKind.EXCLUSIVE_LEVEL:
-        return (*STATE_FIELDS, LIMIT_FIELD)
-    return STATE_FIELDS
-
-
-def read_paths(definitions: Sequence[AlarmDefinition], tier: Tier = "plc") -> list[str]:
-    """Every state variable of every condition of ``tier``: the nodes of its one Read."""
-    return [child(d.name, f, tier) for d in definitions for f in fields_of(d)]
-
-
-@dataclass(frozen=True)
-class AlarmRow:
-    """One condition's state as ``tankctl alarms`` shows it (``--json``: these keys)."""
-
-    tier: str
-    """The tier whose condition it is: ``plc`` or ``supervisor``."""
-    name: str
-    priority: str
-    """The ISA-18.2 priority of the current Severity (LOW/MEDIUM/HIGH/URGENT), else ``""``."""
-    severity: int | None
-    active: bool | None
-    acked: bool | None
-    shelved: str | None
-    """ShelvingState: Unshelved, OneShotShelved or TimedShelved (None if unread)."""
-    enabled: bool | None
-    retain: bool | None
-    limit: str | None
-    """The active limit of a level alarm (HighHigh, High, Low, LowLow), else None."""
-    since: str | None
-    """The condition's Time (its last state change), ISO 8601 UTC."""
-    message: str
-
-    @property
-    def standing(self) -> bool:
-        """Retained: active or unacknowledged (Part 9 Retain; the states when Retain is unread)."""
-        if self.retain is not None:
-            return self.retain
-        return bool(self.active) or self.acked is False
-
-    @property
-    def state(self) -> str:
-        """``ACTIVE``/``RTN``, ``UNACK``/``ACK``, then ``SHELVED`` and ``DISABLED`` when so."""
-        words = ["ACTIVE" if self.active else "RTN", "ACK" if self.acked or self.acked is None else "UNACK"]
-        if self.shelved not in (None, ShelvingState.UNSHELVED.value):
-            words.append("SHELVED")
-        if self.enabled is False:
-            words.append("DISABLED")
-        return " ".join(words)
-
-    def as_json(self) -> dict[str, Any]:
-        return {**asdict(self), "state": self.state, "standing": self.standing}
-
-
-def _text(value: Any) -> str | None:
-    if value is None:
-        return None
-    if isinstance(value, ua.LocalizedText):
-        return value.Text
-    return str(value)
-
-
-def _iso(value: Any) -> str | None:
-    if not isinstance(value, datetime):
-        return None
-    when = value if value.tzinfo is not None else value.replace(tzinfo=UTC)
-    return when.astimezone(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
-
-
-def priority_name(severity: Any) -> str:
-    """The priority whose Severity this is (docs/alarms.md's table), else ``""``."""
-    try:
-        return Priority(int(severity)).name
-    except (TypeError, ValueError):
-        return ""
-
-
-def condition_row(definition: AlarmDefinition, values: Mapping[str, Any], tier: Tier = "plc") -> AlarmRow:
-    """One row from the Read's values (keyed by :func:`child` NodeId strings; None = Bad)."""
-
-    def v(field: str) -> Any:
-        return values.get(child(definition.name, field, tier))
-
-    severity = v("Severity")
-    is_level = definition.kind == ConditionKind.EXCLUSIVE_LEVEL
-    return AlarmRow(
-        tier=tier,
-        name=definition.name,
-        priority=priority_name(severity),
-        severity=int(severity) if severity is not None else None,
-        active=v("ActiveState/Id"),
-        acked=v("AckedState/Id"),
-        shelved=_text(v("ShelvingState/CurrentState")),
-        enabled=v("EnabledState/Id"),
-        retain=v("Retain"),
-        limit=(_text(v(LIMIT_FIELD)) or None) if is_level else None,
-        since=_iso(v("Time")),
-        message=_text(v("Message")) or "",
-    )
-
-
-def condition_rows(
-    definitions: Sequence[AlarmDefinition],
-    values: Mapping[str, Any],
-    *,
-    every: bool = False,
-    tier: Tier = "plc",
-) -> list[AlarmRow]:
-    """The rows ``tankctl alarms`` shows of one tier: the standing ones, or ``every`` condition."""
-    rows = [condition_row(d, values, tier) for d in definitions]
-    return rows if every else [r for r in rows if r.standing]
 
 
 COLUMNS = ("TIER", "NAME", "PRIORITY", "STATE", "LIMIT", "SINCE", "MESSAGE")

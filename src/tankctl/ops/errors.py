@@ -5,7 +5,19 @@ from __future__ import annotations
 import socket
 from typing import Any
 
-from tanklab.errors import TanklabError
+from tanklab.errors import LOGIN_REFUSALS, TanklabError
+
+__all__ = [
+    "LOGIN_REFUSALS",
+    "CallRefusedError",
+    "LoginRefusedError",
+    "RefusedError",
+    "SiteMismatchError",
+    "StoppedError",
+    "UnreachableError",
+    "UsageError",
+    "describe_failure",
+]
 
 
 class UnreachableError(TanklabError):
@@ -34,13 +46,6 @@ class LoginRefusedError(TanklabError):
         self.tier = tier
         self.url = url
         self.status = status
-
-
-LOGIN_REFUSALS = frozenset({"BadUserAccessDenied", "BadIdentityTokenRejected", "BadIdentityTokenInvalid"})
-"""What a server answers a refused ActivateSession with (asyncua raises them as
-``UaStatusCodeError`` subclasses from ``Client.connect``): tanklab's user manager answers
-BadUserAccessDenied to a wrong password, an unknown name and a locked account alike (so that
-a refusal tells an attacker nothing), BadIdentityTokenRejected to an anonymous session."""
 
 
 class SiteMismatchError(TanklabError):
