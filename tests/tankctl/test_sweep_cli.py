@@ -1,0 +1,96 @@
+"""``tankctl sweep`` through typer's CliRunner and as a subprocess: one-line errors before any
+case runs (bad spec, a path that does not exist, an unreachable scheduler), the summary on
+stdout, the files written; and the shipped sweep files run (one case each)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+from helpers import ROOT, free_port
+from sweep_support import write_spec
+from tankctl.cli import app
+from tankctl.sweep.cases import plan_sweep
+from tankctl.sweep.spec import load_spec
+from tankctl.sweep.worker import run_case
+
+pytestmark = pytest.mark.timeout(240)
+
+
+def _run(*args: str) -> tuple[int, str, str]:
+    result = CliRunner().invoke(app, ["sweep", *args])
+    return result.exit_code, result.stdout, result.stderr
+
+
+def test_bad_spec_is_one_line(tmp_path: Path) -> None:
+    code, out, err = _run(str(write_spec(tmp_path, draws=0)), "-o", str(tmp_path / "o"))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("tankctl: ") and "draws" in err
+    assert not (tmp_path / "o").exists()  # nothing ran, nothing written
+
+
+def test_missing_path_is_one_line(tmp_path: Path) -> None:
+    params = [{"name": "x", "paths": ["site.plc.loops.0.gains.kq"], "values": [1.0]}]
+    code, _, err = _run(str(write_spec(tmp_path, parameters=params)), "-o", str(tmp_path / "o"))
+    assert code == 2 and err.count("\n") == 1 and "site.plc.loops.0.gains.kq: no field 'kq'" in err
+
+
+def test_unreachable_scheduler_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from tankctl.sweep import run
+
+    monkeypatch.setattr(run, "CONNECT_TIMEOUT_S", 2.0)
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
+    monkeypatch.setenv("TANKLAB_DASK_SCHEDULER", address)
+    code, out, err = _run(str(write_spec(tmp_path)), "-o", str(tmp_path / "o"))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and f"cannot reach the Dask scheduler at {address}" in err
+    assert not (tmp_path / "o" / "cases.parquet").exists()
+
+
+def test_workers_with_scheduler_is_refused(tmp_path: Path) -> None:
+    code, _, err = _run(str(write_spec(tmp_path)), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1")
+    assert code == 2 and "--workers applies to the local cluster only" in err
+
+
+def test_cli_runs_a_sweep(tmp_path: Path) -> None:
+    out_dir = tmp_path / "o"
+    code, out, err = _run(str(write_spec(tmp_path, draws=1)), "-o", str(out_dir), "--workers", "1")
+    assert code == 0, err
+    assert "# Sweep tiny" in out and "| LIC1.iae | 2 |" in out
+    assert "ran 2 case runs, 0 already in" in out
+    assert "sweep [" in err and "2/2 100%" in err  # the piped progress bar
+    assert pq.read_table(out_dir / "cases.parquet").num_rows == 2
+
+
+def test_subprocess_sweep_and_resume(tmp_path: Path) -> None:
+    out_dir = tmp_path / "o"
+    spec = write_spec(tmp_path, draws=1)
+    cmd = [sys.executable, "-m", "tankctl", "sweep", str(spec), "-o", str(out_dir), "-w", "1"]
+    env = {k: v for k, v in os.environ.items() if k != "TANKLAB_DASK_SCHEDULER"}
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=ROOT, env=env, check=False)
+    assert first.returncode == 0, first.stderr
+    assert "ran 2 case runs, 0 already" in first.stdout
+    second = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=ROOT, env=env, check=False)
+    assert second.returncode == 0, second.stderr
+    assert "ran 0 case runs, 2 already" in second.stdout
+
+
+@pytest.mark.parametrize("name", ["energies_leak_noise", "kortela_mpc_weights"])
+def test_shipped_sweep_case_runs(name: str) -> None:
+    """One case of each shipped sweep, every variant, full length, in this process."""
+    spec, scenario_path = load_spec(ROOT / "sweeps" / f"{name}.yaml")
+    plan = plan_sweep(spec, scenario_path)
+    tasks = [t for t in plan.tasks() if t.case.index == len(plan.cases) - 1]
+    assert len(tasks) == len(plan.variants)
+    for task in tasks:
+        row = run_case(task)
+        assert row["status"] == "ok", row["error"]
+        assert row["worker"] == "local"
+        assert all(row[c] is not None for c in plan.metric_columns if not c.endswith("settling_time_s"))
+        assert row["LIC1.iae"] > 0
