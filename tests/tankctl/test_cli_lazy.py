@@ -23,7 +23,7 @@ ENV = {"COLUMNS": "100", "TERMINAL_WIDTH": "100"}
 
 
 def _eager_app() -> typer.Typer:
-    from tankctl import cli, history_cli, ops, security_cli, simulate_cli, tune_cli
+    from tankctl import cli, history_cli, ops, security_cli, simulate_cli, sweep_cli, tune_cli
     from tankctl.usage import OneLineUsage
 
     app = typer.Typer(
@@ -38,6 +38,7 @@ def _eager_app() -> typer.Typer:
     ops.register(app)
     app.command("history", cls=OneLineUsage)(history_cli.history_command)
     simulate_cli.register(app)
+    app.command("sweep")(sweep_cli.sweep_command)
     security_cli.register(app)
     app.add_typer(cli.docs_app, name="docs")
     for command in (cli.linearize, cli.plant, cli.plc, cli.supervisor, cli.historian, cli.up):

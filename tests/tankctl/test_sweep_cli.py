@@ -4,7 +4,9 @@ stdout, the files written; and the shipped sweep files run (one case each)."""
 
 from __future__ import annotations
 
+import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -13,12 +15,15 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from helpers import ROOT, free_port
+from helpers import ROOT, free_port, wait_until_sync
 from sweep_support import write_spec
 from tankctl.cli import app
 from tankctl.sweep.cases import plan_sweep
+from tankctl.sweep.run import run_sweep
 from tankctl.sweep.spec import load_spec
 from tankctl.sweep.worker import run_case
+from tankctl.sweep_cli import SWEEP_MISSING
+from tanklab_testing.procs import alive, descendants
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -94,3 +99,93 @@ def test_shipped_sweep_case_runs(name: str) -> None:
         assert row["worker"] == "local"
         assert all(row[c] is not None for c in plan.metric_columns if not c.endswith("settling_time_s"))
         assert row["LIC1.iae"] > 0
+
+
+_LIST_MODULES = (
+    "import json, sys\n"
+    "{block}"
+    "from tankctl.entry import main\n"
+    "sys.argv = ['tankctl', *sys.argv[1:]]\n"
+    "try:\n"
+    "    main()\n"
+    "except SystemExit as e:\n"
+    "    code = e.code\n"
+    "print(json.dumps(sorted(sys.modules)), file=sys.stderr)\n"
+    "sys.exit(code)\n"
+)
+
+
+def test_help_imports_no_dask_and_missing_extra_is_one_line(tmp_path: Path) -> None:
+    """``tankctl --help`` lists sweep without importing Dask or pyarrow; without the extra
+    (``sys.modules[name] = None``: every import of it raises ImportError) the command says how
+    to install it in one line, exit 2, before reading the spec."""
+    p = subprocess.run(
+        [sys.executable, "-c", _LIST_MODULES.format(block=""), "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+        check=False,
+    )
+    assert p.returncode == 0 and " sweep " in p.stdout
+    modules = set(json.loads(p.stderr.strip().splitlines()[-1]))
+    assert not modules & {"dask", "distributed", "pyarrow", "numpy", "tankctl.sweep"}
+    block = "sys.modules['distributed'] = None\n"
+    spec = write_spec(tmp_path)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _LIST_MODULES.format(block=block),
+            "sweep",
+            str(spec),
+            "-o",
+            str(tmp_path / "o"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+        check=False,
+    )
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and lines[0] == f"tankctl: {SWEEP_MISSING}" and len(lines) == 2
+    assert not (tmp_path / "o").exists()
+
+
+def test_killed_sweep_resumes_without_recomputing(tmp_path: Path) -> None:
+    """``tankctl sweep`` SIGKILLed (with its cluster) after its first rows were written: the
+    rerun computes only the missing case runs, and the rows written before are unchanged."""
+    spec = write_spec(
+        tmp_path,
+        duration_s=1000.0,
+        draws=6,
+        parameters=[{"name": "kp", "paths": ["site.plc.loops.0.gains.kp"], "values": [3.0e-4, 6.0e-4]}],
+    )
+    out_dir = tmp_path / "o"
+    cases = out_dir / "cases.parquet"
+    env = {k: v for k, v in os.environ.items() if k != "TANKLAB_DASK_SCHEDULER"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tankctl", "sweep", str(spec), "-o", str(out_dir), "-w", "1"],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        wait_until_sync(cases.exists, 120, what="the first batch written", poll_s=0.05)
+        family = [proc.pid, *descendants(proc.pid)]
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    wait_until_sync(lambda: not any(alive(pid) for pid in family), 30, what="the sweep's processes gone")
+    before = pq.read_table(cases).to_pylist()
+    assert 1 <= len(before) < 12, "the sweep finished before it was killed"
+    resumed = run_sweep(spec, out_dir, workers=1)
+    assert (resumed.ran, resumed.skipped) == (12 - len(before), len(before))
+    assert [r["case"] for r in resumed.rows] == list(range(12))
+    by_case = {r["case"]: r for r in resumed.rows}
+    for row in before:
+        assert by_case[row["case"]] == row  # wall time and worker included: not run again
+    assert all(r["status"] == "ok" for r in resumed.rows)
