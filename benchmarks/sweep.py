@@ -8,7 +8,7 @@ processes; the clock runs from the first submission to the last row (the cluster
 workers' first imports are timed apart, as *start-up*). Cases per second count case runs (one
 variant of one case). *Scheduling overhead per case* is the workers' time not spent inside
 cases, ``(workers x wall - sum of the cases' wall_s) / case runs``; *memory per worker* the
-workers' RSS after the run (``client.run``, psutil). The large run is ``tankctl sweep``'s own
+workers' RSS after the run (as they report it to the scheduler). The large run is ``tankctl sweep``'s own
 :func:`tankctl.sweep.run.run_sweep` on the whole file, its summary as it writes it.
 """
 
@@ -59,6 +59,7 @@ class SweepBench:
     """Everything the section shows."""
 
     speed_ms: float
+    draws: int = THROUGHPUT_DRAWS
     throughput: list[Throughput] = field(default_factory=list)
     large: dict[str, Any] | None = None
     errors: list[str] = field(default_factory=list)
@@ -73,17 +74,12 @@ def _spec_with_draws(directory: Path, draws: int) -> Path:
     return out
 
 
-def _rss_mb() -> float:
-    import psutil
-
-    return float(psutil.Process().memory_info().rss) / 2**20
-
-
 def throughput(workers: int, spec_path: Path) -> Throughput:
     """Run every case of ``spec_path`` on a new LocalCluster of ``workers`` processes."""
     from tankctl.sweep.cases import plan_sweep
     from tankctl.sweep.run import connect, execute
     from tankctl.sweep.spec import load_spec
+    from tankctl.sweep.worker import warm_up
 
     spec, scenario = load_spec(spec_path)
     plan = plan_sweep(spec, scenario)
@@ -93,11 +89,13 @@ def throughput(workers: int, spec_path: Path) -> Throughput:
     with connect(None, workers) as client:
         client.wait_for_workers(workers)
         # the workers' first imports (numpy, scipy, the co-simulation) belong to the start-up
-        client.run(__import__, "tankctl.simulate.runner")
+        client.run(warm_up)
         t1 = time.perf_counter()
         execute(client, tasks, rows.extend, key_prefix=f"bench-{workers}")
         t2 = time.perf_counter()
-        rss = list(client.run(_rss_mb).values())
+        # each worker's resident memory as its nanny last reported it to the scheduler
+        info = client.scheduler_info()["workers"]
+        rss = [w["metrics"]["memory"] / 2**20 for w in info.values()]
     return Throughput(
         workers,
         len(rows),
@@ -113,9 +111,9 @@ def run(log: Callable[[str], None], quick: bool = False) -> SweepBench:
     """The section's measurements (the 1,000-case run only without ``quick``)."""
     from tankctl.sweep.run import run_sweep
 
-    res = SweepBench(speed_reference())
+    res = SweepBench(speed_reference(), QUICK_DRAWS if quick else THROUGHPUT_DRAWS)
     with tempfile.TemporaryDirectory(prefix="tanklab-sweep-bench-") as tmp:
-        spec = _spec_with_draws(Path(tmp), QUICK_DRAWS if quick else THROUGHPUT_DRAWS)
+        spec = _spec_with_draws(Path(tmp), res.draws)
         for n in (1, 2):
             log(f"  throughput on {n} local worker(s)")
             t = throughput(n, spec)
@@ -167,7 +165,7 @@ def markdown(res: SweepBench) -> str:
         "",
         "`benchmarks/sweep.py` (`python -m benchmarks.run --only sweep`): the shipped "
         "`sweeps/energies_leak_noise.yaml` (fixed PID `pid` and adapted PID `mpc_pid`, 1000 s of model "
-        f"time each) with its draws cut to {res.throughput[0].runs // 40 if res.throughput else '?'}, "
+        f"time each) with its draws cut to {res.draws} (20 grid points x {res.draws} x 2 variants), "
         "on a LocalCluster of 1 and of 2 single-threaded worker processes (`tankctl.sweep.run.execute`). "
         "The wall clock runs from the first submission to the last row; *start-up* is the cluster's "
         "start and the workers' first imports. *Overhead per case* = (workers x wall - sum of the "

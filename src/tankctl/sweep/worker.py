@@ -20,7 +20,7 @@ from typing import Any
 from tankctl.sweep.cases import CaseTask, case_setup
 from tanklab.scenario import Scenario, load_scenario
 
-__all__ = ["result_row", "run_case"]
+__all__ = ["result_row", "run_case", "warm_up"]
 
 _blas_limited = False
 
@@ -94,3 +94,10 @@ def run_case(task: CaseTask) -> dict[str, Any]:
         error = f"{type(e).__name__}: {first}" if first else type(e).__name__
         metrics = {}
     return result_row(task, metrics, error, time.perf_counter() - started)
+
+
+def warm_up() -> None:
+    """Import the co-simulation and pin BLAS in this worker (what a first case would do), so that
+    a benchmark can time the cases apart from the workers' start."""
+    _limit_blas_once()
+    import tankctl.simulate.runner  # noqa: F401
