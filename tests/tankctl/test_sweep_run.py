@@ -6,6 +6,7 @@ row, and the summary's numbers match hand-computed medians and 95th percentiles.
 from __future__ import annotations
 
 import io
+import math
 import random
 import subprocess
 import sys
@@ -206,3 +207,25 @@ def test_progress_line_and_piped_bar() -> None:
     lines = stream.getvalue().splitlines()
     assert [ln.split()[2] for ln in lines] == ["5/20", "10/20", "15/20", "20/20"]
     assert lines[-1].endswith("ETA 0:00")
+
+
+def test_heatmap_cells_are_medians_over_draws(tmp_path: Path) -> None:
+    from tankctl.sweep.plots import heatmap_grid, plot_heatmaps
+
+    rows = [
+        {"variant": "v", "status": "ok", "a": a, "b": b, "m": m}
+        for a, b, m in [
+            (1, "x", 1.0),
+            (1, "x", 3.0),
+            (1, "x", 8.0),
+            (1, "y", 2.0),
+            (2, "x", None),
+            (2, "y", 5.0),
+        ]
+    ]
+    rows.append({"variant": "v", "status": "error", "a": 2, "b": "x", "m": None})
+    grid = heatmap_grid(rows, "v", "m", ("a", [1, 2]), ("b", ["x", "y"]))
+    assert grid[0].tolist() == [3.0, 2.0] and grid[1, 1] == 5.0
+    assert math.isnan(grid[1, 0])  # no case of the cell has the metric
+    out = plot_heatmaps(rows, ["v"], ["m"], ("a", [1, 2]), ("b", ["x", "y"]), tmp_path / "h.png", "t")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -69,6 +69,8 @@ def connect(scheduler: str | None, workers: int | None) -> Iterator[Any]:
     """
     from distributed import Client, LocalCluster
 
+    # Dask logs every connection at INFO on stderr, where the progress bar is: warnings only.
+    logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
         try:
             client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
@@ -86,7 +88,8 @@ def connect(scheduler: str | None, workers: int | None) -> Iterator[Any]:
         threads_per_worker=1,
         processes=True,
         host="127.0.0.1",
-        dashboard_address=None,
+        # the scheduler's HTTP server (health, metrics) on a free loopback port, not on 8787
+        dashboard_address="127.0.0.1:0",
         silence_logs=logging.ERROR,
     )
     try:
