@@ -229,3 +229,16 @@ def test_heatmap_cells_are_medians_over_draws(tmp_path: Path) -> None:
     assert math.isnan(grid[1, 0])  # no case of the cell has the metric
     out = plot_heatmaps(rows, ["v"], ["m"], ("a", [1, 2]), ("b", ["x", "y"]), tmp_path / "h.png", "t")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_terminal_bar_redraws_one_line_and_counts_resumed_cases_as_done() -> None:
+    now = [0.0]
+    stream = io.StringIO()
+    bar = Progress(10, 4, stream, tty=True, clock=lambda: now[0])  # 4 found done in the output
+    now[0] = 3.0
+    bar.update(3)
+    bar.close()
+    text = stream.getvalue()
+    assert text.count("\r") == 1 and text.endswith("\n") and text.count("\n") == 1
+    # 3 new in 3 s: 1 case/s, 3 left: 3 s
+    assert text.strip() == progress_line(7, 10, 3, 3.0) and text.rstrip().endswith("1.00 cases/s ETA 0:03")
