@@ -242,3 +242,17 @@ def test_terminal_bar_redraws_one_line_and_counts_resumed_cases_as_done() -> Non
     assert text.count("\r") == 1 and text.endswith("\n") and text.count("\n") == 1
     # 3 new in 3 s: 1 case/s, 3 left: 3 s
     assert text.strip() == progress_line(7, 10, 3, 3.0) and text.rstrip().endswith("1.00 cases/s ETA 0:03")
+
+
+def test_distributions_of_a_metric_equal_in_every_case(tmp_path: Path) -> None:
+    """A metric equal up to rounding in every case (a pump's saturated max_du) still plots."""
+    import numpy as np
+
+    from tankctl.sweep.plots import plot_distributions
+
+    # two values one ulp apart: numpy cannot make 5 finite-sized bins of that range
+    x = 1.2e-4
+    values = [x, float(np.nextafter(x, 1.0))] * 10
+    rows = [{"variant": "v", "status": "ok", "m": m, "c": 0.0} for m in values]
+    out = plot_distributions(rows, ["v"], ["m", "c"], tmp_path / "d.png", "t")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

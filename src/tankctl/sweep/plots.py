@@ -30,6 +30,17 @@ def _ok(rows: Sequence[dict[str, Any]], variant: str, metric: str) -> list[float
     ]
 
 
+def _bins(values: Sequence[float]) -> int | np.ndarray:
+    """Histogram bins: up to 30 over the values' range; two edges around a range too narrow for
+    numpy to split (a metric equal in every case up to rounding, as a saturated max_du)."""
+    lo, hi = min(values), max(values)
+    n = min(30, max(5, len(values) // 5))
+    if hi - lo > 1e-9 * max(abs(lo), abs(hi)) and hi - lo > 1e-300:
+        return n
+    pad = max(abs(lo) * 1e-3, 1e-12)
+    return np.array([lo - pad, hi + pad])
+
+
 def plot_distributions(
     rows: Sequence[dict[str, Any]], variants: Sequence[str], metrics: Sequence[str], out: Path, title: str
 ) -> Path:
@@ -50,7 +61,7 @@ def plot_distributions(
         for v in variants:
             values = _ok(rows, v, metric)
             if values:
-                ax.hist(values, bins=min(30, max(5, len(values) // 5)), histtype="step", label=v)
+                ax.hist(values, bins=_bins(values), histtype="step", label=v)
         ax.set_title(metric, fontsize=9)
         ax.set_ylabel("cases")
     for k in range(n, nrows * cols):
