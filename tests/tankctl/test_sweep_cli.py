@@ -189,3 +189,33 @@ def test_killed_sweep_resumes_without_recomputing(tmp_path: Path) -> None:
     for row in before:
         assert by_case[row["case"]] == row  # wall time and worker included: not run again
     assert all(r["status"] == "ok" for r in resumed.rows)
+
+
+def test_without_matplotlib_the_sweep_runs_and_says_the_plots_were_skipped(tmp_path: Path) -> None:
+    block = "sys.modules['matplotlib'] = None\n"
+    spec = write_spec(tmp_path, draws=1)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _LIST_MODULES.format(block=block),
+            "sweep",
+            str(spec),
+            "-o",
+            str(tmp_path / "o"),
+            "-w",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        cwd=ROOT,
+        check=False,
+    )
+    assert p.returncode == 0, p.stderr
+    assert "plots skipped: matplotlib is not installed (pip install 'tanklab[plots]')" in p.stderr
+    assert sorted(f.name for f in (tmp_path / "o").iterdir()) == [
+        "cases.parquet",
+        "summary.json",
+        "summary.md",
+    ]
