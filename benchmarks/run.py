@@ -48,6 +48,7 @@ from benchmarks import (
     robustness,
     security,
     stack,
+    sweep,
 )
 from benchmarks.common import ROOT, machine, speed_reference, versions
 from benchmarks.report import alarms_section
@@ -64,6 +65,7 @@ SECTIONS = (
     "historian-store",
     "historian-read",
     "alarms",
+    "sweep",
 )
 
 
@@ -285,6 +287,15 @@ def main(argv: list[str] | None = None) -> int:
             rep.errors.append(f"alarms: tankctl processes left on the stack's ports: {result.left}")
 
     section("alarms", run_alarms)
+
+    def run_sweep() -> None:
+        _log("scenario sweeps on Dask (1 and 2 local workers; the 1,000-case Energies sweep):")
+        result = sweep.run(_log, quick=args.quick)
+        rep.extra.append(sweep.markdown(result))
+        rep.extra_goals += sweep.goals(result)
+        rep.errors += result.errors
+
+    section("sweep", run_sweep)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

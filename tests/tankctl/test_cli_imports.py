@@ -117,7 +117,18 @@ def test_every_command_is_still_listed() -> None:
 
     r = CliRunner().invoke(app, ["--help"])
     assert r.exit_code == 0
-    for name in ("simulate", "compare", "tune", "linearize", "setpoint", "status", "scenario", "pki", "up"):
+    for name in (
+        "simulate",
+        "compare",
+        "sweep",
+        "tune",
+        "linearize",
+        "setpoint",
+        "status",
+        "scenario",
+        "pki",
+        "up",
+    ):
         assert f" {name} " in r.stdout, name
     r = CliRunner().invoke(app, ["tune", "zn", "--gain", "2", "--dead-time", "1", "--tau", "5", "--json"])
     assert r.exit_code == 0 and json.loads(r.stdout)["Kc"] == pytest.approx(0.9 * 5 / (2 * 1))  # ZN PI

@@ -23,7 +23,17 @@ ENV = {"COLUMNS": "100", "TERMINAL_WIDTH": "100"}
 
 
 def _eager_app() -> typer.Typer:
-    from tankctl import cli, history_cli, k8s_cli, ops, scenario_cli, security_cli, simulate_cli, tune_cli
+    from tankctl import (
+        cli,
+        history_cli,
+        k8s_cli,
+        ops,
+        scenario_cli,
+        security_cli,
+        simulate_cli,
+        sweep_cli,
+        tune_cli,
+    )
     from tankctl.usage import OneLineUsage
 
     app = typer.Typer(
@@ -42,6 +52,7 @@ def _eager_app() -> typer.Typer:
             group.typer_instance = scenario_cli.scenario_app
     app.command("history", cls=OneLineUsage)(history_cli.history_command)
     simulate_cli.register(app)
+    app.command("sweep")(sweep_cli.sweep_command)
     security_cli.register(app)
     app.add_typer(k8s_cli.k8s_app, name="k8s")
     app.add_typer(cli.docs_app, name="docs")

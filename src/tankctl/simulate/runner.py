@@ -142,16 +142,27 @@ def _event_scan(at_s: float, ts_s: float) -> int:
 
 
 def run_variant(
-    scenario: Scenario, site_path: Path, variant: Variant, *, duration_s: float | None = None
+    scenario: Scenario,
+    site_path: Path,
+    variant: Variant,
+    *,
+    duration_s: float | None = None,
+    site: SiteConfig | None = None,
 ) -> VariantResult:
     """Run one variant of a scenario; metrics and minimum-time bounds included.
+
+    ``site`` is the variant's site when the caller built it already (a sweep's case changes the
+    variant's site further, :mod:`tankctl.sweep.cases`); default: the site file with the
+    variant's ``set`` applied (:func:`tanklab.scenario.variant_site`). The scenario's
+    ``initial`` section is written into it either way.
 
     Raises
     ------
     ConfigError
         The variant's site is invalid, or an event cannot be applied (one line, naming it).
     """
-    site = variant_site(scenario, site_path, variant)
+    if site is None:
+        site = variant_site(scenario, site_path, variant)
     site = apply_initial(site, scenario.initial, f"{scenario.name}: initial (variant {variant.name})")
     if variant.supervisor_mode != "OFF" and site.supervisor is None:
         raise ConfigError(
