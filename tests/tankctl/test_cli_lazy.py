@@ -56,7 +56,7 @@ def _eager_app() -> typer.Typer:
     security_cli.register(app)
     app.add_typer(k8s_cli.k8s_app, name="k8s")
     app.add_typer(cli.docs_app, name="docs")
-    for command in (cli.linearize, cli.plant, cli.plc, cli.supervisor, cli.historian, cli.up):
+    for command in (cli.linearize, cli.plant, cli.plc, cli.supervisor, cli.historian, cli.hmi, cli.up):
         app.command()(command)
     return app
 
