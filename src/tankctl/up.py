@@ -421,8 +421,13 @@ class LocalStack:
         return probe.done() and not probe.cancelled()
 
     async def _probe(self, tier: Tier) -> None:
+        """Until the tier answers: an OPC UA tier a Read of its probe path, the HMI ``GET /healthz``."""
         if tier.name == "hmi":
-            await self._probe_http(tier)
+
+            async def healthy() -> bool:
+                return await _healthz_ok(self.host, tier.port)
+
+            await self._until_ready(tier, healthy, f"{tier.url}/healthz")
             return
         path = paths.PROBE_PATHS[tier.name]
         builders = {
@@ -433,30 +438,22 @@ class LocalStack:
         }
         tags = builders[tier.name](self.site)
         link = self.link(tier.name, {path: tags_by_path(tags)[path]}, tier.name)
-        deadline = time.monotonic() + READY_TIMEOUT_S
+
+        async def answers() -> bool:
+            if await link.ensure():
+                with contextlib.suppress(Exception):
+                    await link.read([path])
+                    return True
+            return False
+
         try:
-            while True:
-                if not tier.running:
-                    await tier.wait(1.0)
-                    raise StartError(
-                        f"{tier.name} exited during start-up (exit {tier.exit_code}): {tier.reason()}"
-                        f"; log {tier.log_path}"
-                    )
-                if await link.ensure():
-                    with contextlib.suppress(Exception):
-                        await link.read([path])
-                        return
-                if time.monotonic() > deadline:
-                    raise StartError(
-                        f"{tier.name} did not answer at {tier.url} within {READY_TIMEOUT_S:.0f} s"
-                        f"; log {tier.log_path}"
-                    )
-                await asyncio.sleep(0.1)
+            await self._until_ready(tier, answers, tier.url)
         finally:
             await link.close()
 
-    async def _probe_http(self, tier: Tier) -> None:
-        """Until the HMI answers ``GET /healthz`` with 200 (its tiers need not all be up)."""
+    async def _until_ready(self, tier: Tier, ready: Callable[[], Awaitable[bool]], where: str) -> None:
+        """Poll ``ready`` every 0.1 s until it says so; StartError when the tier exits first or
+        READY_TIMEOUT_S passes (naming the tier, ``where`` it was asked, and its log)."""
         deadline = time.monotonic() + READY_TIMEOUT_S
         while True:
             if not tier.running:
@@ -465,11 +462,11 @@ class LocalStack:
                     f"{tier.name} exited during start-up (exit {tier.exit_code}): {tier.reason()}"
                     f"; log {tier.log_path}"
                 )
-            if await _healthz_ok(self.host, tier.port):
+            if await ready():
                 return
             if time.monotonic() > deadline:
                 raise StartError(
-                    f"{tier.name} did not answer at {tier.url}/healthz within {READY_TIMEOUT_S:.0f} s"
+                    f"{tier.name} did not answer at {where} within {READY_TIMEOUT_S:.0f} s"
                     f"; log {tier.log_path}"
                 )
             await asyncio.sleep(0.1)

@@ -42,7 +42,7 @@ import copy
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
 from tanklab.config import (
     LOOP_NAME,
@@ -56,8 +56,9 @@ from tanklab.config import (
     NonNegFloat,
     PositiveFloat,
     SiteConfig,
-    format_validation_error,
+    load_model,
     read_yaml,
+    sibling_file,
     site_from_mapping,
 )
 
@@ -288,17 +289,8 @@ def _child(node: Any, part: str, where: str) -> Any:
 def load_scenario(path: str | Path) -> tuple[Scenario, Path]:
     """Read and validate a scenario file; return it and the resolved site file path."""
     p = Path(path)
-    data = read_yaml(p)
-    if not isinstance(data, dict):
-        raise ConfigError(f"{p}: (top level): expected a mapping, got {type(data).__name__}")
-    try:
-        scenario = Scenario.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(format_validation_error(p, e)) from e
-    site_path = (p.parent / scenario.site).resolve()
-    if not site_path.exists():
-        raise ConfigError(f"{p}: site: no such file {scenario.site}")
-    return scenario, site_path
+    scenario = load_model(p, Scenario)
+    return scenario, sibling_file(p, "site", scenario.site)
 
 
 def variant_site(scenario: Scenario, site_path: Path, variant: Variant) -> SiteConfig:

@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
-from tanklab.config import ConfigError, Finite, Model, PositiveFloat, format_validation_error, read_yaml
+from tanklab.config import Finite, Model, PositiveFloat, load_model, sibling_file
 
 __all__ = [
     "LOOP_METRICS",
@@ -236,14 +236,5 @@ def load_spec(path: str | Path) -> tuple[SweepSpec, Path]:
         One line naming the file, the field and the rule.
     """
     p = Path(path)
-    data: Any = read_yaml(p)
-    if not isinstance(data, dict):
-        raise ConfigError(f"{p}: (top level): expected a mapping, got {type(data).__name__}")
-    try:
-        spec = SweepSpec.model_validate(data)
-    except ValidationError as e:
-        raise ConfigError(format_validation_error(p, e)) from e
-    scenario_path = (p.parent / spec.scenario).resolve()
-    if not scenario_path.exists():
-        raise ConfigError(f"{p}: scenario: no such file {spec.scenario}")
-    return spec, scenario_path
+    spec = load_model(p, SweepSpec)
+    return spec, sibling_file(p, "scenario", spec.scenario)

@@ -6,10 +6,10 @@ import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from tanklab.config.site import Endpoint, SiteConfig
 from tanklab.errors import ConfigError
@@ -76,6 +76,36 @@ def read_yaml(path: Path) -> Any:
         where = f"line {mark.line + 1}" if mark is not None else "(parse)"
         problem = getattr(e, "problem", None) or str(e).splitlines()[0]
         raise ConfigError(f"{path}: {where}: invalid YAML: {problem}") from e
+
+
+ModelT = TypeVar("ModelT", bound=BaseModel)
+
+
+def load_model(path: Path, model: type[ModelT]) -> ModelT:
+    """Read a YAML file whose top level is a mapping and validate it as ``model`` (a scenario, a
+    sweep spec).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file, the field and the rule.
+    """
+    data = read_yaml(path)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: (top level): expected a mapping, got {type(data).__name__}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(format_validation_error(path, e)) from e
+
+
+def sibling_file(path: Path, field: str, name: str) -> Path:
+    """The file ``name`` that field ``field`` of the file ``path`` names, relative to ``path``'s
+    directory, resolved; ConfigError naming the field when there is no such file."""
+    resolved = (path.parent / name).resolve()
+    if not resolved.exists():
+        raise ConfigError(f"{path}: {field}: no such file {name}")
+    return resolved
 
 
 def site_from_mapping(data: Any, source: str | Path = "<memory>") -> SiteConfig:
