@@ -124,6 +124,16 @@ def create_app(state: HmiState, *, https: bool = False) -> Starlette:
     def session_of(conn: HTTPConnection) -> Session | None:
         return state.sessions.get(conn.cookies.get(COOKIE), state.now())
 
+    def posting_session(request: Request) -> Session | Response:
+        """The session of a state-changing request, or its refusal: 401 without one, 403 when
+        the CSRF header is missing or wrong."""
+        s = session_of(request)
+        if s is None:
+            return _error(401, "not logged in")
+        if not state.sessions.csrf_ok(s, request.headers.get(CSRF_HEADER)):
+            return _error(403, "CSRF token missing or wrong")
+        return s
+
     def hub_of(s: Session) -> UserHub:
         hub = state.hubs.get(s.user)
         if hub is None:  # the hub went with an expired twin session: this one is gone too
@@ -146,11 +156,9 @@ def create_app(state: HmiState, *, https: bool = False) -> Starlette:
         """A POST route: logged in (401), CSRF token (403), JSON body (400), tier away (503)."""
 
         async def endpoint(request: Request) -> Response:
-            s = session_of(request)
-            if s is None:
-                return _error(401, "not logged in")
-            if not state.sessions.csrf_ok(s, request.headers.get(CSRF_HEADER)):
-                return _error(403, "CSRF token missing or wrong")
+            s = posting_session(request)
+            if isinstance(s, Response):
+                return s
             try:
                 hub = hub_of(s)
                 result = await handler(request, s, hub, await body(request))
@@ -214,11 +222,9 @@ def create_app(state: HmiState, *, https: bool = False) -> Starlette:
         return response
 
     async def logout(request: Request) -> Response:
-        s = session_of(request)
-        if s is None:
-            return _error(401, "not logged in")
-        if not state.sessions.csrf_ok(s, request.headers.get(CSRF_HEADER)):
-            return _error(403, "CSRF token missing or wrong")
+        s = posting_session(request)
+        if isinstance(s, Response):
+            return s
         state.sessions.close(s.id)
         await state.release([s])
         response = Response(status_code=204)
