@@ -30,11 +30,10 @@ from tanklab.tags import DataType, Tag, Tier, all_tags, tags_by_path
 __all__ = ["SiteModel", "json_value", "parse_value"]
 
 _LIVE_PREFIXES = (
-    "PLC.Status.",
-    "PLC.Interlock.",
-    "PLC.Alarms.",
-    "PLC.AlarmSummary.",
-    "Supervisor.AlarmSummary.",
+    paths.plc.status + ".",
+    paths.plc.interlocks_prefix,
+    paths.plc.alarms_prefix,
+    *(path for tier in ("plc", "supervisor") for path in paths.alarm_summary_paths(tier).values()),
 )
 _SUPERVISOR_LIVE = (
     paths.supervisor.mode,
