@@ -180,7 +180,7 @@ class PublishedMetric(Model):
     note: str = Field("", description="Where it was printed and how it was converted.")
 
 
-ExpectMetric = Literal[
+LoopMetricName = Literal[
     "iae",
     "ise",
     "itae",
@@ -188,8 +188,12 @@ ExpectMetric = Literal[
     "settling_time_s",
     "max_du",
     "constraint_violations",
-    "interlock_trips",
 ]
+"""The per-loop metrics of ``tankctl simulate`` (the fields of ``tankctl.metrics.LoopMetrics``)."""
+
+LOOP_METRICS: tuple[str, ...] = get_args(LoopMetricName)
+
+ExpectMetric = Literal[LoopMetricName, "interlock_trips"]
 """The metrics an expectation may bound (see the module docstring for their meaning)."""
 
 EXPECT_METRICS: tuple[str, ...] = get_args(ExpectMetric)

@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 from pydantic import Field, model_validator
 
 from tanklab.config import Finite, Model, PositiveFloat, load_model, sibling_file
+from tanklab.scenario import LOOP_METRICS, LoopMetricName
 
 __all__ = [
     "LOOP_METRICS",
@@ -41,16 +42,10 @@ __all__ = [
     "load_spec",
 ]
 
-LOOP_METRICS = (
-    "iae",
-    "ise",
-    "itae",
-    "overshoot_pct",
-    "settling_time_s",
-    "max_du",
-    "constraint_violations",
-)
-"""The per-loop metrics of :class:`tankctl.metrics.LoopMetrics` a sweep can keep."""
+
+def _default_metrics() -> list[LoopMetricName]:
+    return ["iae", "overshoot_pct", "settling_time_s"]
+
 
 MIN_MASS = 1e-3
 """Least probability a truncated distribution keeps inside its bounds."""
@@ -191,8 +186,8 @@ class SweepSpec(Model):
         1, description="Monte Carlo draws per grid point (each with its own seed)."
     )
     seed: Annotated[int, Field(ge=0)] = Field(0, description="Root seed of every case's seed.")
-    metrics: list[Literal[LOOP_METRICS]] = Field(  # type: ignore[valid-type]
-        default_factory=lambda: ["iae", "overshoot_pct", "settling_time_s"],
+    metrics: list[LoopMetricName] = Field(
+        default_factory=_default_metrics,
         min_length=1,
         description=f"Loop metrics to keep, among {', '.join(LOOP_METRICS)}.",
     )
