@@ -82,9 +82,20 @@ class Uniform(Model):
 
     @model_validator(mode="after")
     def _order(self) -> Uniform:
-        if not self.low < self.high:
-            raise ValueError(f"low ({self.low:g}) must be below high ({self.high:g})")
+        _ordered(self.low, self.high)
         return self
+
+
+def _ordered(low: float, high: float) -> None:
+    if not low < high:
+        raise ValueError(f"low ({low:g}) must be below high ({high:g})")
+
+
+def _enough_mass(z_low: float, z_high: float) -> None:
+    """A truncation to the standard-normal interval [z_low, z_high] keeps at least MIN_MASS."""
+    mass = _phi(z_high) - _phi(z_low)
+    if mass < MIN_MASS:
+        raise ValueError(f"[low, high] holds {mass:.2g} of the distribution, less than {MIN_MASS:g}")
 
 
 class Normal(Model):
@@ -97,11 +108,8 @@ class Normal(Model):
 
     @model_validator(mode="after")
     def _bounds(self) -> Normal:
-        if not self.low < self.high:
-            raise ValueError(f"low ({self.low:g}) must be below high ({self.high:g})")
-        mass = _phi((self.high - self.mean) / self.std) - _phi((self.low - self.mean) / self.std)
-        if mass < MIN_MASS:
-            raise ValueError(f"[low, high] holds {mass:.2g} of the distribution, less than {MIN_MASS:g}")
+        _ordered(self.low, self.high)
+        _enough_mass((self.low - self.mean) / self.std, (self.high - self.mean) / self.std)
         return self
 
 
@@ -115,13 +123,9 @@ class LogNormal(Model):
 
     @model_validator(mode="after")
     def _bounds(self) -> LogNormal:
-        if not self.low < self.high:
-            raise ValueError(f"low ({self.low:g}) must be below high ({self.high:g})")
-        z_hi = (math.log(self.high) - self.log_mean) / self.log_std
+        _ordered(self.low, self.high)
         z_lo = (math.log(self.low) - self.log_mean) / self.log_std
-        mass = _phi(z_hi) - _phi(z_lo)
-        if mass < MIN_MASS:
-            raise ValueError(f"[low, high] holds {mass:.2g} of the distribution, less than {MIN_MASS:g}")
+        _enough_mass(z_lo, (math.log(self.high) - self.log_mean) / self.log_std)
         return self
 
 
