@@ -46,9 +46,9 @@ def _series(wall_ms: float, solver_ms: float, n: int, *, ours: bool = False) -> 
         iterations=[1 + (k * 7) % 13 for k in range(n)],
         status=Counter({"SOLVED": n}),
         du0=[0.0 if ours else 1e-4 * (1 + k % 5) for k in range(n)],
+        cpu_s=_samples(0.8e-3 * wall_ms, n),
     )
     if ours:
-        s.cpu_s = _samples(0.8e-3 * wall_ms, n)
         s.path = Counter({"daqp": n - 3, "osqp": 2, "held": 1})
     return s
 
