@@ -174,8 +174,8 @@ def mpc_section(rep: Report) -> list[str]:
                 "CPU p99 [ms]",
                 "solver median [ms]",
                 "solver p99 [ms]",
-                "ratio of medians, CPU / wall",
-                "ratio of p99, CPU / wall",
+                "ratio of medians, CPU (wall)",
+                "ratio of p99, CPU (wall)",
                 "|du0| median / max",
                 "status",
             ],
@@ -195,8 +195,8 @@ def mpc_section(rep: Report) -> list[str]:
                 cells.append(f"{_ratios(other, ours, 'median')} / {_ratios(other, ours, 'p99')}")
             rows.append(cells)
         lines += [
-            "Ratios (comparator time / controller time, side by side; median / p99, each as CPU "
-            "time / wall time; the goals use CPU time, decision 0059):",
+            "Ratios (comparator time / controller time, side by side; median / p99, each on "
+            "CPU time with the wall-time ratio in brackets; the goals use CPU time, decision 0059):",
             "",
             *table(["Np", "cvxpy OSQP 1e-4", "cvxpy OSQP 1e-6", "cvxpy default", "do-mpc"], rows),
             *_side_reading(rep),
@@ -327,8 +327,9 @@ def _accuracy_section(rep: Report) -> list[str]:
 
 
 def _ratios(other: Series, ours: Series, stat: str) -> str:
-    """``other`` / ``ours`` at the median or p99, as 'CPU / wall' (CPU '-' when not timed)."""
+    """``other`` / ``ours`` at the median or p99 as 'CPU (wall)', on CPU time where both were
+    timed on it, else '(wall)' alone."""
     wall = ratio(getattr(other.wall, stat), getattr(ours.wall, stat))
     if not (other.cpu_s and ours.cpu_s):
-        return f"- / {fmt(wall)}x"
-    return f"{fmt(ratio(getattr(other.cpu, stat), getattr(ours.cpu, stat)))}x / {fmt(wall)}x"
+        return f"({fmt(wall)}x)"
+    return f"{fmt(ratio(getattr(other.cpu, stat), getattr(ours.cpu, stat)))}x ({fmt(wall)}x)"
