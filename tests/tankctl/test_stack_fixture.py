@@ -7,6 +7,7 @@
 - :func:`running_stack` stops every process it started when its block ends, also when the
   block raises.
 - Bad options fail with one line naming the option.
+- The repository's Stack is the shipped one (one code path), run from the repository root.
 """
 
 from __future__ import annotations
@@ -97,3 +98,27 @@ def test_bad_options_fail_in_one_line(options: dict[str, object], message: str) 
     with pytest.raises(StackError, match=message) as e:
         StackOptions(**options)  # type: ignore[arg-type]
     assert "\n" not in str(e.value)
+
+
+def test_the_repository_stack_is_the_shipped_one_run_from_the_root(tmp_path: Path) -> None:
+    from tankctl.testing import stack as shipped
+    from tanklab_testing.stack import Stack
+
+    s = Stack(SINGLE, 20000)
+    assert isinstance(s, shipped.Stack)  # one code path: start, kill, down are the plugin's
+    assert s.cwd == ROOT
+    assert shipped.Stack(SINGLE, 20000).cwd is None  # from a wheel: the caller's directory
+
+
+def test_lockstep_control_tiers_and_the_historian_store_are_in_the_tier_arguments(tmp_path: Path) -> None:
+    from tankctl.testing.fixture import tier_args
+
+    tiers = ["plant", "plc", "supervisor", "historian"]
+    locked = tier_args(StackOptions(historian=True), tiers, tmp_path)
+    assert locked == {
+        "plant": ("--lockstep",),
+        "plc": ("--lockstep",),
+        "supervisor": ("--lockstep",),
+        "historian": ("--store", str(tmp_path / "history.db")),
+    }
+    assert tier_args(StackOptions(clock="realtime", speed=5.0), tiers[:2], tmp_path) == {}
