@@ -27,7 +27,6 @@ has moved on by the given model seconds.
 
 from __future__ import annotations
 
-import asyncio
 import atexit
 import contextlib
 import os
@@ -42,7 +41,7 @@ from asyncua import Client, ua
 from tankctl.testing.logins import LOGIN_ROLES, Logins, session
 from tankctl.testing.procs import free_base_port
 from tankctl.testing.stack import TIERS, UP_TIMEOUT_S, Stack
-from tankctl.testing.waits import hang_bound
+from tankctl.testing.waits import hang_bound, wait_until
 from tanklab.config import SiteConfig
 from tanklab.paths import plc as plc_paths
 from tanklab.tags import Tag, all_tags
@@ -148,15 +147,18 @@ class TagSession:
         if not model_s >= 0:
             raise StackError(f"tanklab_stack: advance by {model_s!r}: must be >= 0 model seconds")
         target = float(await self.read(plc_paths.model_time)) + model_s
-        loop = asyncio.get_running_loop()
-        give_up = loop.time() + hang_bound(ADVANCE_BOUND_S)
-        while True:
+        now = target - model_s
+
+        async def reached() -> bool:
+            nonlocal now
             now = float(await self.read(plc_paths.model_time))
-            if now >= target:
-                return now
-            if loop.time() > give_up:
-                raise StackError(f"tanklab_stack: model time {now:g} s did not reach {target:g} s")
-            await asyncio.sleep(0.01)  # the PLC's scans run in other processes
+            return now >= target
+
+        try:
+            await wait_until(reached, ADVANCE_BOUND_S, what=f"PLC model time {target:g} s", poll_s=0.01)
+        except AssertionError as e:
+            raise StackError(f"tanklab_stack: model time {now:g} s did not reach {target:g} s ({e})") from e
+        return now
 
 
 class TagClient:
