@@ -25,16 +25,43 @@ where tanklab is installed has these fixtures (``pytest -p no:tanklab`` turns it
     ``assert_expectations()``, which fails the test with one line per unmet ``expect:`` bound
     (as ``tankctl scenario check`` prints them).
 
-Marker: ``@pytest.mark.tanklab_site(config=PATH, overrides={...}, supervisor_mode="MPC")``.
+``tanklab_stack``
+    The site's real tiers, each a ``python -m tankctl`` process on free loopback ports: plant,
+    PLC, the supervisor when the site has one, and the historian when asked for, secured by a
+    throw-away PKI with one user per login role (``observer``, ``operator``, ``engineer``,
+    random passwords; :func:`tanklab_logins`). A
+    :class:`~tankctl.testing.fixture.RunningStack`: ``stack.plc`` / ``stack.plant`` /
+    ``stack.supervisor`` are synchronous clients logged in as the stack's role, with
+    ``read(path)``, ``read_many(paths)``, ``write(path, value)`` (typed from the tag contract; a
+    refused write raises one line naming the status) and ``call(method_path, *args)``;
+    ``stack.client(tier, role)`` is one as another role; ``stack.advance(model_s)`` waits
+    (bounded) until the PLC's model time has moved on by that much. In an ``async`` test,
+    ``async with stack.connect("plc", role) as plc:`` gives the same calls awaited in the test's
+    own event loop (``plc.client`` is the asyncua client). Every process is stopped after the
+    test on every path, a failed or interrupted one too (an ``atexit`` hook kills, by id, what
+    an interrupted run left). Lock-step by default: model time runs as fast as the processes go
+    and the PLC waits for the supervisor's acknowledgement of each scan (``clock="realtime"``:
+    the wall clock times ``speed``).
+``tanklab_stack_factory``
+    ``start(clock=None, speed=None, historian=None, role=None) -> RunningStack``: a stack with
+    options (the marker's, else ``--tanklab-clock``, else lock-step; speed 1; no historian;
+    role ``operator``), as many as a test needs, all stopped after it.
+``tanklab_logins``
+    The session's throw-away security home and its users' passwords
+    (:class:`~tankctl.testing.logins.Logins`): provisioned once per test session.
 
-The co-simulation and its numerics are imported when a fixture is first used, not when pytest
-loads the plugin, so a test run that does not use them pays nothing.
+Markers: ``@pytest.mark.tanklab_site(config=PATH, overrides={...}, supervisor_mode="MPC")`` and
+``@pytest.mark.tanklab_stack(clock="lockstep" | "realtime", speed=..., historian=False,
+role="operator")``.
+
+The co-simulation, the numerics and the stack machinery are imported when a fixture is first
+used, not when pytest loads the plugin, so a test run that does not use them pays nothing.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -44,16 +71,26 @@ import pytest
 if TYPE_CHECKING:
     from tankctl.cosim import CoSimulation
     from tankctl.simulate import ScenarioResult
+    from tankctl.testing.fixture import RunningStack
+    from tankctl.testing.logins import Logins
     from tanklab.config import SiteConfig
 
 __all__ = ["ScenarioRun"]
 
 MARKER = "tanklab_site"
+STACK_MARKER = "tanklab_stack"
+STACK_OPTIONS = ("clock", "speed", "historian", "role")
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("tanklab")
     group.addoption("--tanklab-config", default=None, help="Site config YAML for the tanklab fixtures.")
+    group.addoption(
+        "--tanklab-clock",
+        default=None,
+        choices=("lockstep", "realtime"),
+        help="How tanklab_stack runs model time unless a test's marker says (default: lockstep).",
+    )
     parser.addini("tanklab_config", "Site config YAML for the tanklab fixtures (relative to the ini file).")
 
 
@@ -61,6 +98,11 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
         f"{MARKER}(config=None, overrides=None, supervisor_mode=None): the site the tanklab fixtures use",
+    )
+    config.addinivalue_line(
+        "markers",
+        f"{STACK_MARKER}(clock='lockstep', speed=None, historian=False, role='operator'): "
+        "how tanklab_stack runs",
     )
 
 
@@ -170,3 +212,78 @@ def tanklab_scenario() -> Callable[..., ScenarioRun]:
             pytest.fail(f"tanklab: {e}", pytrace=False)
 
     return run
+
+
+@pytest.fixture(scope="session")
+def tanklab_logins(tmp_path_factory: pytest.TempPathFactory) -> Logins:
+    """A throw-away security home for the session's stacks: a PKI and one user per login role."""
+    from tankctl.testing.logins import provision_users
+
+    return provision_users(tmp_path_factory.mktemp("tanklab-home"))
+
+
+def _stack_marker(request: pytest.FixtureRequest) -> dict[str, Any]:
+    mark = request.node.get_closest_marker(STACK_MARKER)
+    if mark is None:
+        return {}
+    if mark.args or set(mark.kwargs) - set(STACK_OPTIONS):
+        pytest.fail(f"@pytest.mark.{STACK_MARKER} takes {'=, '.join(STACK_OPTIONS)}= only", pytrace=False)
+    return dict(mark.kwargs)
+
+
+@pytest.fixture
+def tanklab_stack_factory(
+    request: pytest.FixtureRequest,
+    tanklab_config: Path,
+    tanklab_site_overrides: dict[str, Any],
+    tanklab_site: SiteConfig,
+    tanklab_logins: Logins,
+    tmp_path: Path,
+) -> Iterator[Callable[..., RunningStack]]:
+    """``start(clock=None, speed=None, historian=None, role=None)``: the site's tiers serving
+    until the test ends (see the module docstring)."""
+    import contextlib
+
+    import yaml
+
+    from tankctl.testing.fixture import StackError, StackOptions, running_stack
+    from tanklab.config import read_yaml
+    from tanklab.scenario import apply_overrides
+    from tanklab_io.threads import limit_blas_threads
+
+    limit_blas_threads()
+    config = tanklab_config
+    if tanklab_site_overrides:  # the tiers read a file: the overridden site written for them
+        config = tmp_path / f"{tanklab_site.name}.yaml"
+        data = apply_overrides(read_yaml(tanklab_config), tanklab_site_overrides)
+        config.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    defaults = {"clock": request.config.getoption("--tanklab-clock") or "lockstep", **_stack_marker(request)}
+    started = 0
+
+    with contextlib.ExitStack() as stacks:
+
+        def start(
+            clock: str | None = None,
+            speed: float | None = None,
+            historian: bool | None = None,
+            role: str | None = None,
+        ) -> RunningStack:
+            nonlocal started
+            given = {"clock": clock, "speed": speed, "historian": historian, "role": role}
+            chosen = {**defaults, **{k: v for k, v in given.items() if v is not None}}
+            started += 1
+            scratch = tmp_path / f"stack-{started}"
+            scratch.mkdir()
+            try:
+                options = StackOptions(**chosen)
+            except (StackError, TypeError) as e:
+                pytest.fail(str(e), pytrace=False)
+            return stacks.enter_context(running_stack(tanklab_site, config, tanklab_logins, scratch, options))
+
+        yield start
+
+
+@pytest.fixture
+def tanklab_stack(tanklab_stack_factory: Callable[..., RunningStack]) -> RunningStack:
+    """The site's tiers serving for the test, with the marker's options (see the module docstring)."""
+    return tanklab_stack_factory()

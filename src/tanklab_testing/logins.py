@@ -1,64 +1,27 @@
 """Logins of a security home, authenticated sessions, and a probe that survives its tier's restarts.
 
-:class:`Logins` is a home and its users' passwords: the tests use the session's home
-(``conftest.security_home``), the benchmarks one provisioned for the run (:func:`provision`).
+:class:`Logins`, :func:`provision` and :func:`session` are :mod:`tankctl.testing.logins`'s
+(shipped with the pytest plugin, decision 0056); what is here is test support only: the role a
+fuzz session acts in, and :class:`Probe`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
-from collections.abc import AsyncIterator, Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 from asyncua import Client, ua
 
+from tankctl.testing.logins import Logins, provision, provision_users, quiet_disconnect, session
 from tanklab.tags import Role
-from tanklab_io.home import SecurityHome
-from tanklab_io.home import provision as provision_home
 from tanklab_io.ua_client import namespace_index, new_client
-from tanklab_io.ua_client import quiet_disconnect as ua_quiet_disconnect
-from tanklab_io.ua_security import ClientIdentity, secure_client
-from tanklab_io.users import Credentials, load_credentials
+from tanklab_io.ua_security import secure_client
 
-
-@dataclass(frozen=True)
-class Logins:
-    """A security home and the passwords of its login users (user name -> credentials)."""
-
-    home: SecurityHome
-    credentials: dict[str, Credentials]
-
-    def identity(self, who: str) -> ClientIdentity:
-        """A login user's identity, or a tier's (``plc``, ``supervisor``) certificate identity."""
-        if who in ("plc", "supervisor"):
-            return ClientIdentity(self.home, who)
-        return ClientIdentity(self.home, "cli", self.credentials[who])
-
+__all__ = ["ROLE_OF", "Logins", "Probe", "provision", "provision_users", "quiet_disconnect", "session"]
 
 ROLE_OF = {"engineer": Role.ENGINEER, "operator": Role.OPERATOR, "supervisor": Role.SUPERVISOR}
 """The role a fuzz session acts in on the PLC."""
-
-
-def provision(root: Path) -> Logins:
-    """A fresh security home at ``root``: the PKI and one engineer with a random password
-    (what ``tankctl up`` provisions on first run)."""
-    home = SecurityHome(root)
-    provision_home(home)
-    creds = load_credentials(home.credentials_file, {})
-    assert creds is not None, f"{home.credentials_file}: not written by provision"
-    return Logins(home, {creds.username: creds})
-
-
-@contextlib.asynccontextmanager
-async def session(url: str, logins: Logins, who: str, timeout_s: float = 10.0) -> AsyncIterator[Client]:
-    """A connected, encrypted and authenticated client of ``url`` acting as ``who``."""
-    client = new_client(url, timeout_s)
-    await secure_client(client, logins.identity(who))
-    async with client:
-        yield client
 
 
 class Probe:
@@ -104,8 +67,3 @@ class Probe:
         client, self.client = self.client, None
         if client is not None:
             await quiet_disconnect(client)
-
-
-async def quiet_disconnect(client: Client) -> None:
-    """:func:`tanklab_io.ua_client.quiet_disconnect` with the probes' 2 s bound (the tier may be gone)."""
-    await ua_quiet_disconnect(client, 2.0)

@@ -13,24 +13,16 @@ import yaml
 
 from plant_sim.linearize import operating_point
 from plant_sim.models import TankNetwork, default_inputs
+from tankctl.testing.stack import HOST, PORT_ORDER, TIERS, tier_url
 from tanklab.config import load_site
 from tanklab.tags import plc_tags
 from tanklab_testing.procs import ROOT
 
-HOST = "127.0.0.1"
-"""Every test and benchmark process serves on loopback."""
+__all__ = ["ENERGIES", "HOST", "PLC_TAGS", "PORT_ORDER", "SITE", "TIERS", "site_config", "tier_url"]
+
 ENERGIES = ROOT / "configs" / "three_tank_energies_sim.yaml"
 SITE = load_site(ENERGIES)
 PLC_TAGS = plc_tags(SITE)
-TIERS = ("plant", "plc", "supervisor")
-"""The control tiers in port order: ``--base-port N`` puts tier k on N + k."""
-PORT_ORDER = (*TIERS, "historian")
-"""Every process of a stack in port order (the historian on N + 3)."""
-
-
-def tier_url(base: int, tier: str, host: str = HOST) -> str:
-    """The endpoint of ``tier`` in a stack on ``base`` (plant on base, PLC on base + 1, ...)."""
-    return f"opc.tcp://{host}:{base + PORT_ORDER.index(tier)}/tanklab/{tier}"
 
 
 def site_config(

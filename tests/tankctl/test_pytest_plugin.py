@@ -5,7 +5,8 @@
   apply; a missing or broken config fails the test in one line; ``tanklab_scenario`` passes and
   fails on a scenario's expectations.
 - In a fresh virtual environment where only tanklab (and pytest) is installed from this checkout,
-  the shipped example test file passes: the plugin is found through its entry point.
+  the shipped example test file passes: the plugin is found through its entry point, and its
+  ``tanklab_stack`` test runs the plant and PLC processes from the installed wheel.
 """
 
 from __future__ import annotations
@@ -157,7 +158,7 @@ def test_the_example_passes_in_a_fresh_venv_with_only_tanklab_installed(tmp_path
         check=False,
     )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
-    assert "2 passed" in run.stdout
+    assert "3 passed" in run.stdout  # two co-simulation tests and one on the real processes
     # the installed tanklab, not this checkout: the venv's site-packages hold the plugin
     where = subprocess.run(
         [str(py), "-c", "import tankctl.pytest_plugin as p; print(p.__file__)"],
