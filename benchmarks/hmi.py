@@ -17,7 +17,8 @@ records ::
 
 where ``t_source`` is the value's OPC UA SourceTimestamp as the server sent it (``t`` in the
 message, epoch s): one clock, this machine's, for the tiers, the HMI and the browser
-(``window.tanklabHmi.parts.latency``, the latest 5000). The samples of a window are cleared at
+(``window.tanklabHmi.parts.latency``, the latest 5000 per browser window: about the last minute
+at the Energies site's 80 changed values a second). The samples of a window are cleared at
 its start and read at its end; p50 and p99 are nearest-rank percentiles (:func:`percentile`).
 
 **The windows.** 1 client: one browser window for :data:`WINDOW_S`. 20 clients: 19 more windows
@@ -170,7 +171,9 @@ def markdown(res: HmiResult) -> str:
         "(Selenium) logged in through the form as the engineer. The page records, for every value "
         "of every `values` message after the first, the time the DOM update that shows it ends "
         "(`performance.timeOrigin + performance.now()`) minus the value's OPC UA SourceTimestamp "
-        "sent in the message (one clock: this machine's). 20 clients are 20 windows of one "
+        "sent in the message (one clock: this machine's); each window keeps its latest 5,000 "
+        "samples (the page's buffer: at about 80 changed values a second, the last minute). "
+        "20 clients are 20 windows of one "
         "Chromium (one login, 20 WebSockets on one user's poll; 20 browser instances are not "
         "realistic on 2 cores), all sampled. CPU: utime + stime from `/proc/<pid>/stat` over the "
         "window, in % of one core: the HMI server's process, and the browser's (every process "
