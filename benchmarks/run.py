@@ -16,7 +16,9 @@ historian's SQLite and PostgreSQL stores: ingest per core, a day read back in pa
 value; ~2 min), ``historian-read`` (a day of one tag at 1 s read through HistoryRead from a
 real asyncua server, raw and as a 60 s Average; ~1 min), ``alarms`` (issue 15's alarm flood:
 the most conditions a site raises in one scan, acknowledged by one client, through real plant
-and PLC processes at a 1 s scan: overruns, scan durations, events/s). Progress goes to stderr;
+and PLC processes at a 1 s scan: overruns, scan durations, events/s), ``sweep``, ``hmi`` (issue
+17: value change to DOM update in headless Chromium, p50/p99, browser and HMI server CPU at 1 and
+20 clients, a real stack at speed 1; ~4 min). Progress goes to stderr;
 the document is written at the end. ``--only`` writes a document with those sections alone:
 give it an ``--output`` to keep docs/benchmarks.md whole.
 """
@@ -41,6 +43,7 @@ from benchmarks import (
     cosim,
     histread,
     histstore,
+    hmi,
     mpc,
     report,
     restarts,
@@ -66,6 +69,7 @@ SECTIONS = (
     "historian-read",
     "alarms",
     "sweep",
+    "hmi",
 )
 
 
@@ -296,6 +300,20 @@ def main(argv: list[str] | None = None) -> int:
         rep.errors += result.errors
 
     section("sweep", run_sweep)
+
+    def run_hmi() -> None:
+        _log(
+            "HMI (value change to DOM update in headless Chromium; browser and server CPU, 1 and 20 clients):"
+        )
+        window_s = hmi.QUICK_WINDOW_S if args.quick else hmi.WINDOW_S
+        result = asyncio.run(hmi.run(ROOT / "var" / "bench-hmi", _log, window_s))
+        rep.extra.append(hmi.markdown(result))
+        rep.extra_goals += hmi.goals(result)
+        rep.errors += [f"hmi: {e}" for e in result.errors]
+        if result.left:
+            rep.errors.append(f"hmi: tankctl processes left on the stack's ports: {result.left}")
+
+    section("hmi", run_hmi)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

@@ -43,7 +43,7 @@ from tanklab_io.home import SecurityHome
 from tanklab_io.ua_history import HistoryReadError
 from tanklab_io.users import Credentials, UsersFile
 
-__all__ = ["COOKIE", "CSRF_HEADER", "HmiState", "create_app"]
+__all__ = ["COOKIE", "CSRF_HEADER", "WS_MAX_BYTES", "HmiState", "create_app"]
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +52,9 @@ CSRF_HEADER = "X-CSRF-Token"
 STATIC_DIR = Path(__file__).parent / "static"
 MAX_BODY_BYTES = 64 * 1024
 """Largest JSON body a command may have."""
+WS_MAX_BYTES = 64 * 1024
+"""Largest WebSocket message a client may send (the page sends subscribes of a trend's paths, a
+few hundred bytes); a larger one closes the socket with 1009 (message too big), unparsed."""
 WS_NOT_LOGGED_IN = 4401
 WS_FOREIGN_ORIGIN = 4403
 MAX_TREND_PATHS = 32
@@ -268,8 +271,14 @@ def create_app(state: HmiState, *, https: bool = False) -> Starlette:
 
             async def receive() -> None:
                 while True:
-                    text = await websocket.receive_text()
-                    answer = _client_message(hub, client, text)
+                    frame = await websocket.receive()
+                    if frame["type"] == "websocket.disconnect":
+                        raise WebSocketDisconnect(frame.get("code", 1000))
+                    text = frame.get("text")
+                    if text is None:  # a binary frame
+                        answer: dict[str, Any] | None = {"type": "error", "error": "JSON text is wanted"}
+                    else:
+                        answer = _client_message(hub, client, text)
                     if answer is not None:
                         await websocket.send_json(answer)
 

@@ -16,7 +16,7 @@ from collections.abc import Generator, Mapping
 
 import uvicorn
 
-from hmi.app import HmiState, create_app
+from hmi.app import WS_MAX_BYTES, HmiState, create_app
 from hmi.hub import POLL_S, UserHub
 from hmi.sessions import SessionTable
 from hmi.site import SiteModel
@@ -71,6 +71,7 @@ async def run_hmi(
         lifespan="on",
         ws="websockets",
         ws_ping_interval=20.0,
+        ws_max_size=WS_MAX_BYTES,
         timeout_graceful_shutdown=3,
     )
     # Bound here, not by uvicorn: a port in use is this OSError, not uvicorn's sys.exit.

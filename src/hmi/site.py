@@ -5,7 +5,8 @@ The **live set** (contract v1, docs/hmi.md) is every mimic binding's tag, every 
 MV, Mode, ManualMV, RemoteMV, Kp, Ki, Kd, GainSource, every tank's Level, Leak, Disturbance,
 every transmitter's PV and Fault, ``Plant.Sim.Time``, ``PLC.Status.*``, ``PLC.Interlock.*``,
 ``PLC.Alarms.*``, ``Supervisor.Mode``, ``Supervisor.MPC.{Status,SolveTime,Horizon,PlannedMV,
-PredictedPV}`` and each alarm tier's ``AlarmSummary.*``: variables only, each on its tier.
+PredictedPV}``, each alarm tier's ``AlarmSummary.*`` and ``Historian.Status.StoreAvailable``
+(so that every tier is in every poll): variables only, each on its tier.
 
 A value goes to the browser as ``{"v": value, "q": status name, "t": source time [epoch s]}``,
 an enumeration's value as its name (``"AUTO"``); a write's JSON value becomes the tag's type by
@@ -85,6 +86,9 @@ class SiteModel:
         wanted += [p for p in tags if p.startswith(_LIVE_PREFIXES)]
         if site.supervisor is not None:
             wanted += list(_SUPERVISOR_LIVE)
+        # the historian's store state: it puts the historian in every poll, so a historian that
+        # stops answering is a ``link`` message like any tier's (the screen marks it unreachable)
+        wanted.append(paths.historian.store_available)
         live = tuple(
             dict.fromkeys(
                 p for p in wanted if p in tags and tags[p].kind == "variable" and _served(site, tags[p])

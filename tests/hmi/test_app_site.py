@@ -37,6 +37,8 @@ def test_every_shipped_site_has_a_live_set_of_its_own_variables(config: Path) ->
         lp = paths.plc.loop(loop.name)
         assert {lp.sp, lp.pv, lp.mv, lp.mode, lp.manual_mv, lp.gain_source} <= set(model.live)
     assert any(p.startswith("PLC.AlarmSummary.") for p in model.live)
+    # every tier is in every poll, the historian too: its silence is a link message (down)
+    assert {model.tier_of(p) for p in model.live} >= {"plant", "plc", "historian"}
     has_supervisor = site.supervisor is not None
     assert (paths.supervisor.mode in model.live) == has_supervisor
     assert all(model.tags[p].tier != "supervisor" for p in model.live) or has_supervisor

@@ -1,10 +1,11 @@
-"""The screen survives a tier's restart: the tier is shown unreachable meanwhile, then back.
+"""The screen survives any tier's restart: the tier is shown unreachable meanwhile, then back.
 
 The tiers run as separate processes (:class:`tanklab_testing.stack.Stack`: ``tankctl up`` stops
 the whole stack when one tier dies), the real HMI server against them, and an Operator's
-headless Chromium. The supervisor is killed (SIGKILL, a crash): the header marks it unreachable
-while the PLC's values keep arriving (the model time still advances on the screen); restarted,
-it is shown reachable again and the page never logged a script error.
+headless Chromium. Each tier in turn (supervisor, historian, PLC, plant) is killed (SIGKILL, a
+crash): the header marks it unreachable while the other tiers' values keep arriving (the model
+time still advances on the screen; with the plant away, the PLC's scan counter in the page's
+store); restarted, it is shown reachable again, and the page never logged a script error.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pytest
 
 from helpers import TEST_PASSWORDS
 from hmi_browser import LoopThread, browser, http_json
+from tanklab import paths
 from tanklab_testing.procs import TankctlProcess, free_base_port, free_port
 from tanklab_testing.sites import PORT_ORDER, site_config
 from tanklab_testing.stack import Stack
@@ -24,7 +26,7 @@ from tanklab_testing.waits import wait_until
 pytestmark = pytest.mark.process
 
 
-def test_a_tier_restart_is_shown_and_survived(tmp_path: Path) -> None:
+def test_every_tier_restart_is_shown_and_survived(tmp_path: Path) -> None:
     config = site_config(tmp_path / "site.yaml", at_operating_point=True, pumps_hold_on_watchdog=True)
     loop = LoopThread()
     stack = Stack(config, free_base_port(), speed=5.0, log_dir=tmp_path / "logs")
@@ -55,26 +57,36 @@ def test_a_tier_restart_is_shown_and_survived(tmp_path: Path) -> None:
         with browser(tmp_path / "downloads") as page:
             page.open(url)
             page.login("operator", TEST_PASSWORDS["operator"])
-            badge = "#links [data-link=supervisor]"
 
             def model_time() -> float:
                 text = page.css("#model-time").text.split()
                 return float(text[2]) if len(text) > 2 else -1.0
 
-            loop.run(stack.kill("supervisor"))
-            page.wait(
-                lambda: page.all(badge) and page.css(badge).get_attribute("data-up") == "false",
-                60,
-                "the supervisor shown unreachable",
-            )
-            assert "supervisor unreachable" in page.css(badge).text
-            t0 = model_time()
-            page.wait(lambda: model_time() > t0 + 5, 60, "the PLC's and the plant's values still arriving")
-            page.screenshot("tier-down")
+            def scan() -> float:
+                value = page.js(f"return window.tanklabHmi.store.value('{paths.plc.scan}')")
+                return float(value) if isinstance(value, int | float) else -1.0
 
-            loop.run(stack.start("supervisor"))
-            page.wait(lambda: page.css(badge).get_attribute("data-up") == "true", 120, "the supervisor back")
-            assert page.css(badge).text == "supervisor"
+            for tier in ("supervisor", "historian", "plc", "plant"):
+                badge = f"#links [data-link={tier}]"
+                loop.run(stack.kill(tier))
+                page.wait(
+                    lambda b=badge: page.all(b) and page.css(b).get_attribute("data-up") == "false",
+                    60,
+                    f"the {tier} shown unreachable",
+                )
+                assert f"{tier} unreachable" in page.css(badge).text
+                alive = scan if tier == "plant" else model_time
+                t0 = alive()
+                page.wait(
+                    lambda a=alive, t=t0: a() > t + 5, 60, f"the other tiers' values arriving ({tier} away)"
+                )
+                if tier == "supervisor":
+                    page.screenshot("tier-down")
+                loop.run(stack.start(tier))
+                page.wait(
+                    lambda b=badge: page.css(b).get_attribute("data-up") == "true", 120, f"the {tier} back"
+                )
+                assert page.css(badge).text == tier
             assert page.errors() == [], "the front end logged errors"
     finally:
         try:

@@ -25,7 +25,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
 from helpers import ROOT, TEST_PASSWORDS, free_base_port, free_port, secure, session_home, wait_until
-from hmi.app import HmiState, create_app
+from hmi.app import WS_MAX_BYTES, HmiState, create_app
 from hmi.sessions import SessionTable
 from hmi.site import SiteModel
 from tanklab import paths
@@ -284,6 +284,96 @@ async def test_websocket_hello_values_alarms_and_changes(hmi: Hmi) -> None:
             (sub,) = await messages(ws, "values")
             while paths.plc.scan not in sub["values"]:
                 (sub,) = await messages(ws, "values")
+
+
+async def test_malformed_websocket_messages_are_error_frames_and_change_nothing(hmi: Hmi) -> None:
+    """Not JSON, not an object, wrong types, an unknown op (a write: the socket has none), a binary
+    frame: each one error frame, the socket stays and nothing is written; a message above
+    WS_MAX_BYTES closes the socket with 1009 unparsed; the server serves on."""
+    before = await plc_value(hmi, LIC1.sp)
+    async with browser(hmi, "operator") as b:
+        cookie = {"Cookie": f"tanklab_hmi={b.cookies['tanklab_hmi']}"}
+        async with connect(ws_url(hmi), additional_headers=cookie) as ws:
+            await messages(ws, "alarms")  # hello, the first values and the alarms are in
+            for bad, error in (
+                ("not json at all", "message is not JSON"),
+                ("[1, 2]", "message must be a JSON object"),
+                ('"subscribe"', "message must be a JSON object"),
+                (
+                    json.dumps({"type": "write", "path": LIC1.sp, "value": 0.77}),
+                    "unknown message type 'write'",
+                ),
+                (json.dumps({"type": 7}), "unknown message type 7"),
+                (json.dumps({"paths": [LIC1.sp]}), "unknown message type None"),
+                (json.dumps({"type": "subscribe", "paths": LIC1.sp}), "paths must be a list of strings"),
+                (json.dumps({"type": "subscribe", "paths": [1, None]}), "paths must be a list of strings"),
+                (json.dumps({"type": "subscribe"}), "paths must be a list of strings"),
+                (b"\x00\xff binary", "JSON text is wanted"),
+            ):
+                await ws.send(bad)
+                (err,) = await messages(ws, "error")
+                assert err == {"type": "error", "error": error}, bad
+            # the socket still works: a good subscribe brings its value
+            await ws.send(json.dumps({"type": "subscribe", "paths": [paths.plc.scan]}))
+            (sub,) = await messages(ws, "values")
+            while paths.plc.scan not in sub["values"]:
+                (sub,) = await messages(ws, "values")
+        async with connect(ws_url(hmi), additional_headers=cookie, max_size=None) as ws:
+            await messages(ws, "alarms")
+            huge = json.dumps({"type": "subscribe", "paths": ["PLC.LIC1.SP" + "x" * 70_000]})
+            assert len(huge) > WS_MAX_BYTES
+            await ws.send(huge)
+            with pytest.raises(ConnectionClosed):
+                while True:
+                    await asyncio.wait_for(ws.recv(), 20.0)
+        assert ws.close_code == 1009  # message too big
+        assert (await b.get("/api/session")).status_code == 200  # the session is untouched
+    assert await plc_value(hmi, LIC1.sp) == before
+    assert hmi.proc.poll() is None and _healthy(hmi.url)
+
+
+async def test_another_users_or_a_logged_out_session_is_refused_and_changes_nothing(hmi: Hmi) -> None:
+    """User A's cookie with user B's CSRF token (and B's with A's) is 403; a logged-out session's
+    cookie replayed (with its own token, or with a live session's) is 401 on every route and
+    4401 on the WebSocket; the setpoint never changes."""
+    before = await plc_value(hmi, LIC1.sp)
+    write = {"path": LIC1.sp, "value": 0.27}
+    async with browser(hmi, "operator") as a, browser(hmi, "engineer") as b, browser(hmi, "operator") as gone:
+        a_cookie, b_cookie = a.cookies["tanklab_hmi"], b.cookies["tanklab_hmi"]
+        a_csrf, b_csrf = a.headers["X-CSRF-Token"], b.headers["X-CSRF-Token"]
+        assert a_cookie != b_cookie and a_csrf != b_csrf
+        old_cookie, old_csrf = gone.cookies["tanklab_hmi"], gone.headers["X-CSRF-Token"]
+        assert old_cookie != a_cookie  # the same user, another login: another session
+        assert (await gone.post("/api/logout")).status_code == 204
+        async with httpx.AsyncClient(base_url=hmi.url, timeout=15.0) as forger:
+            for cookie, csrf, status in (
+                (a_cookie, b_csrf, 403),
+                (b_cookie, a_csrf, 403),
+                (old_cookie, old_csrf, 401),
+                (old_cookie, a_csrf, 401),
+            ):
+                headers = {"Cookie": f"tanklab_hmi={cookie}", "X-CSRF-Token": csrf}
+                for route, body in (
+                    ("/api/write", write),
+                    ("/api/loop/LIC1/manual", {"percent": 50}),
+                    ("/api/interlock/reset", {}),
+                    ("/api/logout", {}),
+                ):
+                    r = await forger.post(route, json=body, headers=headers)
+                    assert r.status_code == status, (route, cookie == a_cookie, r.text)
+            replay = {"Cookie": f"tanklab_hmi={old_cookie}"}
+            assert (await forger.get("/api/session", headers=replay)).status_code == 401
+            assert (await forger.get("/api/site", headers=replay)).status_code == 401
+            span = {"path": [LIC1.pv], "start": 1, "end": 2}
+            assert (await forger.get("/api/trend", params=span, headers=replay)).status_code == 401
+        async with connect(ws_url(hmi), additional_headers=replay) as ws:
+            with pytest.raises(ConnectionClosed):
+                await asyncio.wait_for(ws.recv(), 20.0)
+        assert ws.close_code == 4401
+        # the refusals closed nothing: both live sessions still work, each with its own token
+        assert (await a.get("/api/session")).json()["user"] == "operator"
+        assert (await b.get("/api/session")).json()["user"] == "engineer"
+    assert await plc_value(hmi, LIC1.sp) == before
 
 
 # ---- alarms and history -----------------------------------------------------------------------
