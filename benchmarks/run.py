@@ -16,7 +16,8 @@ historian's SQLite and PostgreSQL stores: ingest per core, a day read back in pa
 value; ~2 min), ``historian-read`` (a day of one tag at 1 s read through HistoryRead from a
 real asyncua server, raw and as a 60 s Average; ~1 min), ``alarms`` (issue 15's alarm flood:
 the most conditions a site raises in one scan, acknowledged by one client, through real plant
-and PLC processes at a 1 s scan: overruns, scan durations, events/s). Progress goes to stderr;
+and PLC processes at a 1 s scan: overruns, scan durations, events/s), ``plugin`` (the shipped
+MPC's cycle direct and through the supervisory-controller interface, interleaved). Progress goes to stderr;
 the document is written at the end. ``--only`` writes a document with those sections alone:
 give it an ``--output`` to keep docs/benchmarks.md whole.
 """
@@ -42,6 +43,7 @@ from benchmarks import (
     histread,
     histstore,
     mpc,
+    plugin,
     report,
     restarts,
     restarts_report,
@@ -66,6 +68,7 @@ SECTIONS = (
     "historian-read",
     "alarms",
     "sweep",
+    "plugin",
 )
 
 
@@ -296,6 +299,15 @@ def main(argv: list[str] | None = None) -> int:
         rep.errors += result.errors
 
     section("sweep", run_sweep)
+
+    def run_plugin() -> None:
+        _log("the supervisory-controller interface: the shipped MPC direct and through it, interleaved:")
+        result = plugin.run(_log, duration_s=200.0 if args.quick else 600.0, rounds=1 if args.quick else 3)
+        rep.extra.append(plugin.markdown(result))
+        rep.extra_goals += plugin.goals(result)
+        rep.errors += result.errors
+
+    section("plugin", run_plugin)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

@@ -125,6 +125,8 @@ class ShippedController:
             )
         self.core = core if core is not None else SupervisorCore(site)
         self.last_status: SupervisorStatus | None = None
+        self.last_actions: Actions | None = None
+        """The core's actions of the last step (the host writes these, once checked)."""
 
     def step(
         self, snapshot: PlcSnapshot, t_s: float, preview: NDArray[np.float64] | None = None
@@ -133,7 +135,8 @@ class ShippedController:
         :meth:`SupervisorCore.cycle`."""
         act: Actions = self.core.cycle(snapshot, preview)
         self.last_status = act.status
-        return ControllerOutput(gains=act.gains, remote_mv=act.remote_mv, modes=act.modes)
+        self.last_actions = act
+        return ControllerOutput(act.gains, act.remote_mv, act.modes, _EMPTY)
 
     def track(self, snapshot: PlcSnapshot) -> None:
         """A scan between two samples (:meth:`SupervisorCore.track`)."""

@@ -182,9 +182,6 @@ class Actions:
     gains: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     status: SupervisorStatus | None = None
     """The supervisor's state after the cycle (None on actions not made by a cycle)."""
-    controller: Any = None
-    """The supervisory controller's report (``supervisor.host.ControllerReport``) after the
-    cycle, set by the host that ran it (None on actions not made by one)."""
 
 
 def build_mpc(site: SiteConfig) -> tuple[MpcController, TankNetwork]:

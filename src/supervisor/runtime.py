@@ -159,7 +159,7 @@ async def run_supervisor(
     trace: Path | None = None,
     retain_file: Path | None = None,
     controller: str | SupervisoryController | None = None,
-    cpu_clock: Callable[[], float] = time.process_time,
+    cpu_clock: Callable[[], float] = time.thread_time,
 ) -> SupervisorCore:
     """Supervise the PLC until ``stop`` is set; return the core for inspection.
 
@@ -291,7 +291,7 @@ async def run_supervisor(
                     save()
                     await server.publish_alarms(events)
                 await server.expire_alarm_rate()
-                await server.publish_status(request.actions.status, request.actions.controller)
+                await server.publish_status(request.actions.status, ctl.report())
                 if trace_file is not None and core.result_scan == snap.scan:
                     trace_file.write(",".join(repr(x) for x in trace_row(snap.scan, snap.t_s, core)) + "\n")
     finally:

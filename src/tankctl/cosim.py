@@ -189,7 +189,7 @@ class CoSimulation:
         ``package.module:Class`` of one (built with the site's ``supervisor.controller.params``);
         default: the site's ``supervisor.controller``, else the shipped MPC and adaptive PID. Given
         without ``supervisor_mode``, the supervisor runs in the config's mode.
-    cpu_clock : CPU seconds for the controller's budget (default ``time.process_time``; tests
+    cpu_clock : CPU seconds for the controller's budget (default ``time.thread_time``; tests
         pass a fake clock).
 
     The supervisor sees every PLC scan's published values (as its one Read would see them)
@@ -208,7 +208,7 @@ class CoSimulation:
         max_substep_s: float | None = None,
         supervisor_mode: Literal["OFF", "ADVISORY", "ADAPTIVE_PID", "MPC"] | None = None,
         controller: str | SupervisoryController | None = None,
-        cpu_clock: Callable[[], float] = time.process_time,
+        cpu_clock: Callable[[], float] = time.thread_time,
     ) -> None:
         if site.plc is None:
             raise ValueError(f"site {site.name!r} has no plc section")

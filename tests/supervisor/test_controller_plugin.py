@@ -90,7 +90,7 @@ def test_the_first_action_matches_the_hand_computed_pi_with_feedforward(tmp_path
     assert act.remote_mv == {"LIC1": pytest.approx(4.55e-5, rel=1e-12), "LIC2": 0.0}
     assert act.modes == {"LIC1": LoopMode.REMOTE, "LIC2": LoopMode.REMOTE}
     assert act.gains == {}
-    rep = act.controller
+    rep = host.report()
     assert rep.class_name == "user_ctrl.pi_ff:PiFeedforward"
     assert (rep.cycles, rep.errors, rep.overruns, rep.last_error) == (1, 0, 0, "")
     assert rep.diagnostics == {
