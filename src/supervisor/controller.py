@@ -71,7 +71,7 @@ SHIPPED = "supervisor.controller:ShippedController"
 """The dotted path of the shipped MPC and adaptive PID."""
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class ControllerOutput:
     """What a controller asks for after one snapshot (see the module docstring).
 

@@ -236,16 +236,26 @@ class ControllerHost:
             raise _FailureError("bad_output", f"step returned {type(out).__name__}, not ControllerOutput")
         try:
             modes, gains, remote = out.modes, out.gains, out.remote_mv
+            loops, auto, remote_mode = self.loops, LoopMode.AUTO, LoopMode.REMOTE
             for lp, m in modes.items():
-                self._mode(lp, m)
+                if (m is not auto and m is not remote_mode) or lp not in loops:
+                    self._mode(lp, m)  # raises, naming the rule
             for lp, g in gains.items():
                 self._gains(lp, g)
             drop: list[str] = []
+            snap_modes, mv_range = snap.modes, self.mv_range
             for lp, v in remote.items():
-                self._mv(lp, v)
-                if snap.modes[self.loops[lp]] is not LoopMode.REMOTE and modes.get(lp) is not LoopMode.REMOTE:
+                # the usual case inline (a float in range), every other one through _mv's checks
+                r = mv_range.get(lp)
+                if r is None or type(v) is not float or not r[0] <= v <= r[1]:
+                    self._mv(lp, v)
+                if snap_modes[loops[lp]] is not remote_mode and modes.get(lp) is not remote_mode:
                     drop.append(lp)
-            diagnostics = [(name, self._diagnostic(name, v)) for name, v in out.diagnostics.items()]
+            diagnostics = (
+                [(name, self._diagnostic(name, v)) for name, v in out.diagnostics.items()]
+                if out.diagnostics
+                else ()
+            )
         except (TypeError, AttributeError) as e:
             raise _FailureError("bad_output", f"malformed output: {type(e).__name__}: {e}") from e
         if diagnostics:
@@ -262,14 +272,14 @@ class ControllerHost:
         )
 
     def _loop(self, lp: object, what: str) -> str:
-        if not isinstance(lp, str) or lp not in self.loops:
+        if lp not in self.loops or not isinstance(lp, str):
             msg = f"{what} for unknown loop {lp!r} (loops: {', '.join(self.loops)})"
             raise _FailureError("bad_output", msg)
         return lp
 
     def _mode(self, lp: str, m: object) -> LoopMode:
         self._loop(lp, "mode")
-        if not isinstance(m, LoopMode) or m not in _SWITCHABLE:
+        if m is not LoopMode.AUTO and m is not LoopMode.REMOTE:
             raise _FailureError("bad_output", f"{lp} mode {m!r}: only LoopMode.AUTO or LoopMode.REMOTE")
         return m
 
@@ -288,14 +298,13 @@ class ControllerHost:
 
     def _mv(self, lp: str, v: object) -> float:
         self._loop(lp, "RemoteMV")
-        mv = _number(v, f"{lp} RemoteMV")
+        mv = v if type(v) is float else _number(v, f"{lp} RemoteMV")
+        lo, hi = self.mv_range[lp]
+        if lo <= mv <= hi:  # False for NaN too
+            return mv
         if not math.isfinite(mv):
             raise _FailureError("non_finite", f"{lp} RemoteMV {mv} not finite")
-        lo, hi = self.mv_range[lp]
-        if not lo <= mv <= hi:
-            msg = f"{lp} RemoteMV {mv:.6g} outside [{lo:.6g}, {hi:.6g}]"
-            raise _FailureError("out_of_range", msg)
-        return mv
+        raise _FailureError("out_of_range", f"{lp} RemoteMV {mv:.6g} outside [{lo:.6g}, {hi:.6g}]")
 
     def _diagnostic(self, name: object, v: object) -> DiagnosticValue:
         kind = self.declared.get(name) if isinstance(name, str) else None
@@ -381,6 +390,8 @@ class ControllerHost:
 
 def _number(x: object, what: str) -> float:
     """A real number as a float (bool and non-numbers are malformed)."""
+    if type(x) is float:
+        return x
     if isinstance(x, bool) or not isinstance(x, int | float | np.integer | np.floating):
         raise _FailureError("bad_output", f"{what}: {x!r} is not a number")
     return float(x)

@@ -9,6 +9,7 @@ would be. Overruns are measured on a fake CPU clock the test's controller advanc
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -17,11 +18,13 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from helpers import ROOT
 from supervisor.controller import ControllerOutput, ShippedController, build_controller, load_controller_class
-from supervisor.cycle import PlcSnapshot
+from supervisor.cycle import PlcSnapshot, SupervisorCore
 from supervisor.host import ControllerHost, build_host
 from tankctl.cli import app
 from tankctl.cosim import CoSimulation
@@ -314,3 +317,36 @@ def test_the_shipped_controller_through_the_host_is_the_core_itself(tmp_path: Pa
     core, host = build_host(site)
     assert isinstance(host.controller, ShippedController) and host.controller.core is core
     assert isinstance(host, ControllerHost) and host.class_name == "supervisor.controller:ShippedController"
+
+
+@functools.cache
+def _shared(tmp: str) -> tuple[SiteConfig, SupervisorCore]:
+    site = load_site(site_file(Path(tmp)))
+    return site, SupervisorCore(site)
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    mv=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=2, max_size=2),
+    remote=st.lists(st.booleans(), min_size=2, max_size=2),
+)
+def test_whatever_a_controller_returns_only_in_range_values_are_written(
+    tmp_path_factory: pytest.TempPathFactory, mv: list[float], remote: list[bool]
+) -> None:
+    site, core = _shared(str(tmp_path_factory.getbasetemp()))
+
+    class Fixed:
+        diagnostics = ()
+
+        def step(self, snapshot: PlcSnapshot, t_s: float) -> ControllerOutput:
+            return ControllerOutput(remote_mv={"LIC1": mv[0], "LIC2": mv[1]})
+
+    host = ControllerHost(site, Fixed(), core, cpu_clock=FakeCpu())  # type: ignore[arg-type]
+    modes = tuple(LoopMode.REMOTE if r else LoopMode.AUTO for r in remote)
+    act = host.cycle(snapshot([0.4, 0.2], [0.35, 0.22], modes))
+    ok = all(math.isfinite(v) and 0.0 <= v <= 1.2e-4 for v in mv)
+    if ok:
+        assert act.remote_mv == {lp: v for lp, v, r in zip(("LIC1", "LIC2"), mv, remote, strict=True) if r}
+        assert host.errors == 0
+    else:
+        assert act.remote_mv == {} and host.errors == 1  # whole output refused, nothing written
