@@ -18,7 +18,8 @@ real asyncua server, raw and as a 60 s Average; ~1 min), ``alarms`` (issue 15's 
 the most conditions a site raises in one scan, acknowledged by one client, through real plant
 and PLC processes at a 1 s scan: overruns, scan durations, events/s), ``sweep``, ``hmi`` (issue
 17: value change to DOM update in headless Chromium, p50/p99, browser and HMI server CPU at 1 and
-20 clients, a real stack at speed 1; ~4 min). Progress goes to stderr;
+20 clients, a real stack at speed 1; ~4 min), ``plugin`` (the shipped MPC's cycle direct and
+through the supervisory-controller interface, interleaved). Progress goes to stderr;
 the document is written at the end. ``--only`` writes a document with those sections alone:
 give it an ``--output`` to keep docs/benchmarks.md whole.
 """
@@ -45,6 +46,7 @@ from benchmarks import (
     histstore,
     hmi,
     mpc,
+    plugin,
     report,
     restarts,
     restarts_report,
@@ -70,6 +72,7 @@ SECTIONS = (
     "alarms",
     "sweep",
     "hmi",
+    "plugin",
 )
 
 
@@ -314,6 +317,15 @@ def main(argv: list[str] | None = None) -> int:
             rep.errors.append(f"hmi: tankctl processes left on the stack's ports: {result.left}")
 
     section("hmi", run_hmi)
+
+    def run_plugin() -> None:
+        _log("the supervisory-controller interface: the shipped MPC direct and through it, interleaved:")
+        result = plugin.run(_log, duration_s=200.0 if args.quick else 600.0, rounds=1 if args.quick else 3)
+        rep.extra.append(plugin.markdown(result))
+        rep.extra_goals += plugin.goals(result)
+        rep.errors += result.errors
+
+    section("plugin", run_plugin)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

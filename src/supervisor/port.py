@@ -9,10 +9,13 @@ Per new PLC scan k (a snapshot whose scan counter moved):
 
 1. the heartbeat count goes up by one (every scan is acknowledged: in lock-step the PLC waits
    for it before scan k + 1);
-2. on a sample scan (the first one seen, then every ``sample_scans`` scans) the core runs a cycle
-   (:meth:`SupervisorCore.cycle`); on the others it only tracks the applied MV
+2. on a sample scan (the first one seen, then every ``sample_scans`` scans) the supervisory
+   controller steps, through its :class:`supervisor.host.ControllerHost` (the shipped one:
+   :meth:`SupervisorCore.cycle`); on the others it only tracks the applied MV
    (:meth:`SupervisorCore.track`). Scan 0, the PLC's values before its first scan, is
-   acknowledged only: nothing has been measured yet;
+   acknowledged only: nothing has been measured yet. While the host is ``failing`` (its
+   controller failed too many steps in a row) no heartbeat is sent, so the PLC's watchdog
+   sheds the loops as for a lost supervisor;
 3. the request is sent in this order: one Write of every loop's ``RemoteMV``, then every loop's
    ``Mode`` (the PLC applies a Write's items in order, so entering REMOTE never applies a stale
    RemoteMV), with the heartbeat as its last item when no gains are pushed; then one
@@ -31,7 +34,9 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from supervisor.controller import ShippedController
 from supervisor.cycle import Actions, PlcSnapshot, SupervisorCore
+from supervisor.host import ControllerHost
 from tanklab import paths
 
 HEARTBEAT_MODULO = 2**32
@@ -91,10 +96,12 @@ class SupervisorDriver:
     Parameters
     ----------
     core : the supervisor core.
+    host : the controller host (default: the shipped controller on ``core``, process CPU time).
     """
 
-    def __init__(self, core: SupervisorCore) -> None:
+    def __init__(self, core: SupervisorCore, host: ControllerHost | None = None) -> None:
         self.core = core
+        self.host = host or ControllerHost(core.site, ShippedController(core.site, core=core), core)
         self.sample_scans = core.sample_scans
         self.heartbeat = 0
         self.last_scan: int | None = None
@@ -113,18 +120,24 @@ class SupervisorDriver:
         if snap.scan == self.last_scan:
             return None
         self.last_scan = snap.scan
-        self.heartbeat += 1
         self.sampled = False
         if snap.scan <= 0:
-            return PlcRequest.of(None, self.heartbeat)
+            return PlcRequest.of(None, self._beat())
         last = self.last_sample_scan
         if last is None or snap.scan < last or snap.scan - last >= self.sample_scans:
             self.last_sample_scan = snap.scan
             self.sampled = True
-            actions = self.core.cycle(snap, preview() if preview is not None else None)
-            return PlcRequest.of(actions, self.heartbeat)
-        self.core.track(snap)
-        return PlcRequest.of(None, self.heartbeat)
+            actions = self.host.cycle(snap, preview() if preview is not None else None)
+            return PlcRequest.of(actions, self._beat())
+        self.host.track(snap)
+        return PlcRequest.of(None, self._beat())
+
+    def _beat(self) -> int | None:
+        """The next heartbeat count, or None while the controller is failing (withheld)."""
+        if self.host.failing:
+            return None
+        self.heartbeat += 1
+        return self.heartbeat
 
     def refused(self, loops: list[str]) -> None:
         """The PLC refused the gain pushes of ``loops``: resynchronise the adapter."""

@@ -35,10 +35,14 @@ import asyncio
 import logging
 import math
 import os
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from supervisor.alarms import SupervisorAlarms
+from supervisor.controller import SupervisoryController
 from supervisor.cycle import SupervisorCore
+from supervisor.host import build_host
 from supervisor.link import PlcLink
 from supervisor.port import SupervisorDriver
 from supervisor.server import SupervisorServer
@@ -154,19 +158,32 @@ async def run_supervisor(
     ready: asyncio.Event | None = None,
     trace: Path | None = None,
     retain_file: Path | None = None,
+    controller: str | SupervisoryController | None = None,
+    cpu_clock: Callable[[], float] = time.thread_time,
 ) -> SupervisorCore:
     """Supervise the PLC until ``stop`` is set; return the core for inspection.
 
     ``trace``: a CSV file that gets one line per sample whose MPC step ran (see
     :func:`trace_row`): how a lock-step run is compared with the co-simulation.
     ``retain_file``: the retentive mode (see the module docstring); none by default.
+    ``controller``: the supervisory controller, or its dotted path (``--controller``; default: the site's
+    ``supervisor.controller``, else the shipped one), run through the same
+    :func:`supervisor.host.build_host` and :class:`SupervisorDriver` as the co-simulation's;
+    ``cpu_clock`` measures its steps against the budget.
+
+    Raises
+    ------
+    tanklab.errors.ControllerError
+        the controller cannot be loaded or built (before anything is served).
     """
     if site.supervisor is None or site.plc is None:
         raise ValueError(f"site {site.name!r} has no supervisor section")
     if not speed > 0:
         raise ValueError(f"speed must be > 0, got {speed}")
     clock = clock or MonotonicClock()
-    core = SupervisorCore(site)
+    path = controller if isinstance(controller, str) else None
+    instance = None if isinstance(controller, str) else controller
+    core, ctl = build_host(site, path, controller=instance, cpu_clock=cpu_clock)
     alarms = SupervisorAlarms(
         site,
         adaptation=core.adapter is not None,
@@ -176,8 +193,18 @@ async def run_supervisor(
     if retained is not None:
         retained.restore(core)
         retained.save_if_changed(core)  # the file holds the mode in force from the start
-    driver = SupervisorDriver(core)
-    server = SupervisorServer(site, core, host, port, security, alarms=alarms, speed=speed)
+    driver = SupervisorDriver(core, ctl)
+    server = SupervisorServer(
+        site,
+        core,
+        host,
+        port,
+        security,
+        alarms=alarms,
+        speed=speed,
+        diagnostics=ctl.controller.diagnostics,
+        controller=ctl.report(),
+    )
 
     def save() -> None:
         if retained is not None:
@@ -264,7 +291,7 @@ async def run_supervisor(
                     save()
                     await server.publish_alarms(events)
                 await server.expire_alarm_rate()
-                await server.publish_status(request.actions.status)
+                await server.publish_status(request.actions.status, ctl.report())
                 if trace_file is not None and core.result_scan == snap.scan:
                     trace_file.write(",".join(repr(x) for x in trace_row(snap.scan, snap.t_s, core)) + "\n")
     finally:

@@ -12,7 +12,11 @@ The supervisor's own alarms (:class:`supervisor.alarms.SupervisorAlarms`: MpcFai
 AdaptationUnhealthy, PlcLinkLost) are OPC UA conditions under ``Supervisor`` (installed at
 :meth:`SupervisorServer.start`, docs/alarms.md section 9): the runtime publishes each cycle's
 events with :meth:`SupervisorServer.publish_alarms`; a client's condition call is answered by
-``manager.call(call, alarms.t_s)``, the model time of the last feed. Feeds and calls are
+``manager.call(call, alarms.t_s)``, the model time of the last feed.
+
+``Supervisor.Controller.*`` shows the supervisory controller (decision 0054): its class, steps,
+contained errors and overruns, the last error, and its declared diagnostics
+(:func:`controller_values`). Feeds and calls are
 serialised by the one asyncio loop (both synchronous). After a warm restart (the runtime's
 retentive memory) each restored retained condition is announced once at start.
 """
@@ -27,12 +31,13 @@ from asyncua import ua
 
 from supervisor.alarms import SupervisorAlarms
 from supervisor.cycle import SupervisorCore, SupervisorStatus
+from supervisor.host import ControllerReport
 from tanklab import paths
 from tanklab.alarms import CallStatus, ConditionCall, ConditionEvent
 from tanklab.config import SiteConfig
 from tanklab.enums import MpcStatus, SupervisorMode
 from tanklab.handlers import HandlerTable
-from tanklab.tags import Tag, supervisor_tags, tags_by_path
+from tanklab.tags import Diagnostic, Tag, supervisor_tags, tags_by_path
 from tanklab_io.conditions import ModelUtc, UaConditions
 from tanklab_io.conditions.summary import SummaryPublisher
 from tanklab_io.ua import Publisher, WriteHandler
@@ -59,8 +64,12 @@ class SupervisorServer:
         *,
         alarms: SupervisorAlarms | None = None,
         speed: float = 1.0,
+        diagnostics: Sequence[Diagnostic] = (),
+        controller: ControllerReport | None = None,
     ) -> None:
         self.site = site
+        self.controller = controller
+        """The supervisory controller's report to publish at start (its class name)."""
         self.core = core
         self.alarms = alarms or SupervisorAlarms(site, adaptation=core.adapter is not None)
         self.conditions: UaConditions | None = None
@@ -69,7 +78,7 @@ class SupervisorServer:
         when an activation leaves the rate window: :meth:`expire_alarm_rate`)."""
         self.to_utc = ModelUtc(speed)
         self.url = f"opc.tcp://{host}:{port}/tanklab/supervisor"
-        self.tags = supervisor_tags(site)
+        self.tags = supervisor_tags(site, diagnostics)
         self.by_path = tags_by_path(self.tags)
         self.security = security
         self.tier: TierServer | None = None
@@ -106,7 +115,7 @@ class SupervisorServer:
         await self.summary.publish()
         # After a warm restart each restored retained condition is announced once, as the PLC's.
         await self.conditions.publish(manager.restart_events(self.alarms.t_s))
-        await self.publish_status(self.core.status())
+        await self.publish_status(self.core.status(), self.controller)
         log.info("supervisor server listening at %s", self.url)
 
     def _alarm_call(self, call: ConditionCall) -> tuple[CallStatus, Sequence[ConditionEvent]]:
@@ -138,9 +147,15 @@ class SupervisorServer:
         assert self.publisher is not None
         await self.publisher.publish(values)
 
-    async def publish_status(self, status: SupervisorStatus) -> None:
-        """Publish the core's state (:func:`status_values`)."""
-        await self.publish(status_values(status))
+    async def publish_status(
+        self, status: SupervisorStatus, controller: ControllerReport | None = None
+    ) -> None:
+        """Publish the core's state (:func:`status_values`) and the controller's report
+        (:func:`controller_values`)."""
+        values = status_values(status)
+        if controller is not None:
+            values.update(controller_values(controller))
+        await self.publish(values)
 
     def write_handlers(self) -> HandlerTable[WriteHandler]:
         """The handler of each writable supervisor variable (``Supervisor.Mode``)."""
@@ -188,4 +203,19 @@ def status_values(status: SupervisorStatus) -> dict[str, Any]:
         v[rls.prior] = list(a.prior)
         v[rls.noise_std] = a.noise_std_m
         v[rls.rejected] = status.rejected
+    return v
+
+
+def controller_values(report: ControllerReport) -> dict[str, Any]:
+    """The ``Supervisor.Controller.*`` node values of ``report``, keyed by tag path."""
+    sup = paths.supervisor
+    v: dict[str, Any] = {
+        sup.controller_class: report.class_name,
+        sup.controller_cycles: report.cycles,
+        sup.controller_errors: report.errors,
+        sup.controller_last_error: report.last_error,
+        sup.controller_overruns: report.overruns,
+    }
+    for name, value in report.diagnostics.items():
+        v[sup.controller_diagnostic(name)] = value
     return v

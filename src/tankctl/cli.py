@@ -465,13 +465,26 @@ def supervisor(
     ] = None,
     home: HomeOpt = None,
     audit_dir: AuditOpt = None,
+    controller: Annotated[
+        str | None,
+        typer.Option(
+            help="Supervisory controller package.module:Class (default: the site's "
+            "supervisor.controller, else the shipped MPC and adaptive PID)."
+        ),
+    ] = None,
 ) -> None:
     """Serve the supervisor at opc.tcp://HOST:PORT/tanklab/supervisor, supervising the PLC."""
+    from supervisor.controller import build_controller
     from supervisor.runtime import run_supervisor
+    from tanklab.errors import ControllerError
 
     site = load(resolve_config(config))
     if site.supervisor is None:
         raise fail(f"{resolve_config(config)}: supervisor: the site has no supervisor section")
+    try:  # a controller that cannot be loaded is a one-line error before anything is served
+        ctl = build_controller(site, controller)
+    except ControllerError as e:
+        raise fail(str(e) if controller else f"{resolve_config(config)}: {e}") from None
     bind = host or _env("TANKLAB_HOST") or "127.0.0.1"
     p = _port(port, site.endpoints.supervisor.port)
     spd = resolve_speed(speed)
@@ -490,6 +503,7 @@ def supervisor(
             ready=ready,
             trace=trace,
             retain_file=retain_file,
+            controller=ctl,
         )
 
     serve(

@@ -13,6 +13,7 @@ supervisor) act between scans, as an operator or an OPC UA client would.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -25,7 +26,9 @@ from plc_emulator.program import GainStatus, PlcProgram, ScanInputs
 from plc_emulator.publish import status_values
 from plc_emulator.status import PlcStatus
 from plc_emulator.writes import apply_write
+from supervisor.controller import SupervisoryController
 from supervisor.cycle import PlcSnapshot, SupervisorCore
+from supervisor.host import ControllerHost, build_host
 from supervisor.port import PlcRequest, SupervisorDriver
 from tanklab.config import PidGainsSpec, SiteConfig
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
@@ -182,6 +185,12 @@ class CoSimulation:
     supervisor_mode : run the supervisor (:class:`supervisor.cycle.SupervisorCore`) in this mode;
         None: the PLC alone. Entering MPC at start goes through the same bumpless switch as at run
         time (the loops are put in REMOTE at the first cycle).
+    controller : the supervisory controller (decision 0054): an instance, or the dotted path
+        ``package.module:Class`` of one (built with the site's ``supervisor.controller.params``);
+        default: the site's ``supervisor.controller``, else the shipped MPC and adaptive PID. Given
+        without ``supervisor_mode``, the supervisor runs in the config's mode.
+    cpu_clock : CPU seconds for the controller's budget (default ``time.thread_time``; tests
+        pass a fake clock).
 
     The supervisor sees every PLC scan's published values (as its one Read would see them)
     through the same :class:`supervisor.port.SupervisorDriver` as the supervisor process, and
@@ -198,6 +207,8 @@ class CoSimulation:
         integrator: Literal["rk4", "adaptive"] = "rk4",
         max_substep_s: float | None = None,
         supervisor_mode: Literal["OFF", "ADVISORY", "ADAPTIVE_PID", "MPC"] | None = None,
+        controller: str | SupervisoryController | None = None,
+        cpu_clock: Callable[[], float] = time.thread_time,
     ) -> None:
         if site.plc is None:
             raise ValueError(f"site {site.name!r} has no plc section")
@@ -223,12 +234,16 @@ class CoSimulation:
         self.port = ProgramPort(self.plc, site)
         self.supervisor_alive = True
         self.preview: Callable[[CoSimulation], FloatArray | None] | None = None
-        if supervisor_mode is not None:
+        self.host: ControllerHost | None = None
+        if supervisor_mode is not None or controller is not None:
             if site.supervisor is None:
                 raise ValueError(f"site {site.name!r} has no supervisor section")
-            self.supervisor = SupervisorCore(site)
-            self.supervisor.request_mode(SupervisorMode[supervisor_mode])
-            self.driver = SupervisorDriver(self.supervisor)
+            path = controller if isinstance(controller, str) else None
+            instance = None if isinstance(controller, str) else controller
+            self.supervisor, self.host = build_host(site, path, controller=instance, cpu_clock=cpu_clock)
+            if supervisor_mode is not None:
+                self.supervisor.request_mode(SupervisorMode[supervisor_mode])
+            self.driver = SupervisorDriver(self.supervisor, self.host)
 
     @property
     def t_s(self) -> float:

@@ -34,9 +34,19 @@ ConfigOpt = Annotated[
 VariantOpt = Annotated[
     list[str] | None, typer.Option("--variant", "-v", help="Run only this variant (repeatable).")
 ]
+ControllerOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--controller",
+        help="Supervisory controller package.module:Class run by the supervisor (default: the site's "
+        "supervisor.controller, else the shipped MPC and adaptive PID).",
+    ),
+]
 
 
-def _run(file: Path, config: Path | None, variant: list[str] | None) -> ScenarioResult:
+def _run(
+    file: Path, config: Path | None, variant: list[str] | None, controller: str | None = None
+) -> ScenarioResult:
     # The co-simulation computes: one BLAS thread, as in the tiers (tanklab_io.threads).
     from tanklab_io.threads import limit_blas_threads
 
@@ -45,7 +55,7 @@ def _run(file: Path, config: Path | None, variant: list[str] | None) -> Scenario
     from tanklab.errors import TanklabError
 
     try:
-        return run_scenario(file, config=config, variants=variant)
+        return run_scenario(file, config=config, variants=variant, controller=controller)
     except TanklabError as e:
         raise _fail(str(e)) from None
 
@@ -73,13 +83,14 @@ def simulate_command(
     ] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="One PNG with every variant.")] = None,
     variant: VariantOpt = None,
+    controller: ControllerOpt = None,
 ) -> None:
     """Run a scenario in the co-simulation, once per variant; print metrics per loop and step."""
     if plot is not None and not _plots_available():  # before the run (and its imports)
         raise _fail(PLOTS_MISSING)
     from tankctl.simulate import result_json, summary_text, write_csv
 
-    result = _run(scenario, config, variant)
+    result = _run(scenario, config, variant, controller)
     written: list[Path] = []
     try:
         if csv_out is not None:

@@ -43,3 +43,9 @@ LOGIN_REFUSALS = frozenset({"BadUserAccessDenied", "BadIdentityTokenRejected", "
 ``UaStatusCodeError`` subclasses from ``Client.connect``): tanklab's user manager answers
 BadUserAccessDenied to a wrong password, an unknown name and a locked account alike (so that
 a refusal tells an attacker nothing), BadIdentityTokenRejected to an anonymous session."""
+
+
+class ControllerError(TanklabError, ValueError):
+    """A supervisory controller named by dotted path cannot be used: the path is malformed, its
+    module is not importable, the name is missing, the class does not implement the interface or
+    its construction failed. One line naming the path and the problem (decision 0054)."""

@@ -385,6 +385,18 @@ class SupervisorPaths:
     mpc_planned_mv = "Supervisor.MPC.PlannedMV"
     mpc_predicted_pv = "Supervisor.MPC.PredictedPV"
     disturbance = "Supervisor.Estimator.Disturbance"
+    controller = "Supervisor.Controller"
+    """The supervisory controller's object (decision 0054)."""
+    controller_class = "Supervisor.Controller.Class"
+    controller_cycles = "Supervisor.Controller.Cycles"
+    controller_errors = "Supervisor.Controller.Errors"
+    controller_last_error = "Supervisor.Controller.LastError"
+    controller_overruns = "Supervisor.Controller.Overruns"
+
+    @staticmethod
+    def controller_diagnostic(name: str) -> str:
+        """The node of a controller's declared diagnostic ``name``."""
+        return f"Supervisor.Controller.Diagnostics.{name}"
 
     @staticmethod
     @cache

@@ -15,6 +15,10 @@ asyncua server and resolves them on a client.
 
 from __future__ import annotations
 
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode, MpcStatus, SensorFault, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
@@ -62,6 +66,7 @@ __all__ = [
     "TIER_ROOTS",
     "Argument",
     "DataType",
+    "Diagnostic",
     "Role",
     "Tag",
     "Tier",
@@ -513,8 +518,73 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
     return b.tags
 
 
-def supervisor_tags(site: SiteConfig) -> list[Tag]:
-    """Nodes of the supervisor for ``site`` (needs ``plc`` and ``supervisor`` sections)."""
+DIAGNOSTIC_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,63}$")
+"""A controller diagnostic's name: a browse name of letters, digits and underscores."""
+
+DIAGNOSTIC_TYPES = {float: DataType.DOUBLE, bool: DataType.BOOLEAN, str: DataType.STRING}
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    """One diagnostic a supervisory controller declares (decision 0054): published as
+    ``Supervisor.Controller.Diagnostics.<name>``.
+
+    Attributes
+    ----------
+    name : browse name (letters, digits, underscores; starts with a letter).
+    kind : float (a Double, finite), bool or str.
+    description : what it shows, with its unit.  unit : the unit of a float ("" for none).
+    """
+
+    name: str
+    kind: type[float] | type[bool] | type[str] = float
+    description: str = ""
+    unit: str = ""
+
+    def __post_init__(self) -> None:
+        if not DIAGNOSTIC_NAME.match(self.name):
+            raise ValueError(
+                f"diagnostic name {self.name!r}: letters, digits and underscores, starting with a letter"
+            )
+        if self.kind not in DIAGNOSTIC_TYPES:
+            raise ValueError(f"diagnostic {self.name}: kind must be float, bool or str, not {self.kind!r}")
+
+
+def controller_tags(b: TagList, diagnostics: Sequence[Diagnostic]) -> None:
+    """The supervisory controller's fixed nodes and its declared diagnostics."""
+    sup = supervisor
+    b.var(sup.controller_class, DataType.STRING, "The supervisory controller's class (package.module:Class).")
+    b.var(sup.controller_cycles, DataType.UINT32, "Steps of the controller called.")
+    b.var(
+        sup.controller_errors,
+        DataType.UINT32,
+        "Steps whose output was discarded: the controller raised, returned a non-finite or out-of-range "
+        "value or a malformed output (the last safe action held).",
+    )
+    b.var(sup.controller_last_error, DataType.STRING, "The last error: kind and message (empty until one).")
+    b.var(
+        sup.controller_overruns,
+        DataType.UINT32,
+        "Steps that took more CPU time than the budget (their output discarded, the last safe action held).",
+    )
+    seen: set[str] = set()
+    for d in diagnostics:
+        if d.name in seen:
+            raise ValueError(f"diagnostic {d.name} declared twice")
+        seen.add(d.name)
+        analog = d.kind is float  # every Double is an AnalogItemType (unit "1": dimensionless)
+        b.var(
+            sup.controller_diagnostic(d.name),
+            DIAGNOSTIC_TYPES[d.kind],
+            d.description or f"The controller's diagnostic {d.name}.",
+            unit=(d.unit or "1") if analog else None,
+            eu_range=(-1e300, 1e300) if analog else None,
+        )
+
+
+def supervisor_tags(site: SiteConfig, diagnostics: Sequence[Diagnostic] = ()) -> list[Tag]:
+    """Nodes of the supervisor for ``site`` (needs ``plc`` and ``supervisor`` sections), with the
+    declared ``diagnostics`` of its supervisory controller (the shipped one declares none)."""
     if site.supervisor is None or site.plc is None:
         raise ValueError(f"site {site.name!r} has no supervisor section")
     b = TagList("supervisor")
@@ -628,6 +698,7 @@ def supervisor_tags(site: SiteConfig) -> list[Tag]:
         DataType.DOUBLE_ARRAY,
         f"Estimated input disturbances [m^3/s], one per disturbance state (pumps: {pumps}).",
     )
+    controller_tags(b, diagnostics)
     _alarm_summary(b)
     return b.tags
 

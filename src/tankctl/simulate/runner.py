@@ -28,6 +28,7 @@ from tankctl.metrics import (
 from tankctl.simulate.results import DisturbanceResult, ScenarioResult, StepResult, VariantResult
 from tanklab.config import ConfigError, SiteConfig, numeric_key, site_from_mapping
 from tanklab.enums import LoopMode, SensorFault, SupervisorMode
+from tanklab.errors import ControllerError
 from tanklab.scenario import (
     DisturbanceEvent,
     Event,
@@ -148,11 +149,13 @@ def run_variant(
     *,
     duration_s: float | None = None,
     site: SiteConfig | None = None,
+    controller: str | None = None,
 ) -> VariantResult:
     """Run one variant of a scenario; metrics and minimum-time bounds included.
 
     ``site`` is the variant's site when the caller built it already (a sweep's case changes the
-    variant's site further, :mod:`tankctl.sweep.cases`); default: the site file with the
+    variant's site further, :mod:`tankctl.sweep.cases`); ``controller`` the supervisory
+    controller's dotted path (``--controller``; default: the site's); default site: the site file with the
     variant's ``set`` applied (:func:`tanklab.scenario.variant_site`). The scenario's
     ``initial`` section is written into it either way.
 
@@ -168,7 +171,13 @@ def run_variant(
         raise ConfigError(
             f"{scenario.name}: variants[{variant.name}].supervisor_mode: the site has no supervisor section"
         )
-    cs = CoSimulation(site, supervisor_mode=variant.supervisor_mode if site.supervisor else None)
+    try:
+        cs = CoSimulation(
+            site, supervisor_mode=variant.supervisor_mode if site.supervisor else None, controller=controller
+        )
+    except ControllerError as e:
+        # from the site file's supervisor.controller: name the file; from --controller: as is
+        raise (ConfigError(f"{site_path}: {e}") if controller is None else e) from None
     ts = cs.ts_s
     duration = scenario.duration_s if duration_s is None else duration_s
     n = round(duration / ts)
@@ -376,6 +385,7 @@ def run_scenario(
     config: str | Path | None = None,
     variants: Sequence[str] | None = None,
     duration_s: float | None = None,
+    controller: str | None = None,
 ) -> ScenarioResult:
     """Load a scenario file and run its variants (all, or the ones named), in file order.
 
@@ -385,6 +395,8 @@ def run_scenario(
     config : a site file to use instead of the scenario's own.
     variants : names of the variants to run; None: every variant.
     duration_s : run length [s] instead of the scenario's (the golden tests trim runs).
+    controller : the supervisory controller ``package.module:Class`` for every variant with a
+        supervisor (default: the site's ``supervisor.controller``, else the shipped one).
 
     Raises
     ------
@@ -404,7 +416,9 @@ def run_scenario(
                 raise ConfigError(f"{scenario.name}: no variant {name!r}; known: {', '.join(sorted(known))}")
         chosen = [v for v in chosen if v.name in set(variants)]
     duration = scenario.duration_s if duration_s is None else float(duration_s)
-    runs = {v.name: run_variant(scenario, site_path, v, duration_s=duration) for v in chosen}
+    runs = {}
+    for v in chosen:
+        runs[v.name] = run_variant(scenario, site_path, v, duration_s=duration, controller=controller)
     events = [(ev.at_s, _describe(ev)) for ev in scenario.sorted_events() if ev.at_s < duration]
     return ScenarioResult(scenario, site_path, duration, runs, events)
 

@@ -77,6 +77,7 @@ from tanklab.config.site import (
 )
 from tanklab.config.supervisor import (
     AdaptationSpec,
+    ControllerSpec,
     MpcSpec,
     SupervisorConfig,
 )
@@ -92,6 +93,7 @@ __all__ = [
     "VALVE_NAME",
     "AdaptationSpec",
     "ConfigError",
+    "ControllerSpec",
     "Endpoint",
     "Endpoints",
     "Finite",

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from tanklab.config.base import Model, NonNegFloat, PositiveFloat
 from tanklab.config.plc import AlarmOverride
@@ -118,6 +118,41 @@ class SupervisorAlarmsConfig(Model):
     )
 
 
+CONTROLLER_PATH = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*$"
+"""A controller's dotted path: ``package.module:Class`` (decision 0054)."""
+
+
+class ControllerSpec(Model):
+    """A supervisory controller of one's own (decision 0054, docs/your-controller.md): a class
+    implementing :class:`supervisor.controller.SupervisoryController`, loaded by dotted path and
+    built from the site and ``params``; the supervisor contains it (a raise, a non-finite or
+    out-of-range output, an overrun of ``budget_s`` holds the last safe action)."""
+
+    # ``class`` in the file; ``class_`` in Python (a dump without aliases validates again)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, populate_by_name=True)
+
+    class_: str = Field(
+        alias="class",
+        pattern=CONTROLLER_PATH,
+        description="The controller class as package.module:Class (importable where the supervisor runs).",
+    )
+    params: dict[str, Any] = Field(
+        default_factory=dict, description="The controller's own parameters, passed to it as a mapping."
+    )
+    budget_s: PositiveFloat | None = Field(
+        None,
+        description="CPU time one step may take [s]; a longer step is an overrun (its output is "
+        "discarded); null = the supervisor's sample time.",
+    )
+    max_failures: int = Field(
+        3,
+        ge=1,
+        le=1000,
+        description="Consecutive failed steps (raise, bad output, overrun) after which the supervisor "
+        "stops its heartbeat, so the PLC's watchdog sheds the loops as for a lost supervisor.",
+    )
+
+
 class SupervisorConfig(Model):
     """The SCADA level: MPC, adaptation and their cadence."""
 
@@ -137,6 +172,11 @@ class SupervisorConfig(Model):
     alarms: SupervisorAlarmsConfig = Field(
         default_factory=SupervisorAlarmsConfig,
         description="Alarm management of the supervisor's conditions: per-alarm overrides, shelving.",
+    )
+    controller: ControllerSpec | None = Field(
+        None,
+        description="A supervisory controller of one's own run in place of the shipped MPC and "
+        "adaptive PID (class, params, budget_s, max_failures); null = the shipped ones.",
     )
 
     @property
