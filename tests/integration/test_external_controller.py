@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 from asyncua import Client, ua
 
 from helpers import (
@@ -45,6 +46,8 @@ from tanklab_testing.stack import Stack
 
 SITE = load_site(ROOT / "configs/three_tank_energies_sim.yaml")
 TAGS = tags_by_path(plc_tags(SITE))
+WATCHDOG_S = 60.0
+"""The stack's PLC heartbeat timeout [model s]."""
 SP_EXAMPLE = 0.45
 """The examples' own setpoint for LIC1 [m] (the PLC's SP stays 0.4)."""
 
@@ -160,6 +163,11 @@ async def test_the_external_certificate_opens_no_session_on_the_plant() -> None:
 @pytest.fixture
 async def stack(tmp_path: Path) -> AsyncIterator[Stack]:
     config = site_config(tmp_path / "site.yaml", at_operating_point=True, pumps_hold_on_watchdog=True)
+    data = yaml.safe_load(config.read_text(encoding="utf-8"))
+    # 60 s of model time = 3 s of wall time at speed 20: an example's heartbeat delayed by a
+    # loaded machine must not shed the loop mid-test (the config's 3 s would be the 1 s wall floor).
+    data["plc"]["watchdog"]["timeout_s"] = WATCHDOG_S
+    config.write_text(yaml.safe_dump(data), encoding="utf-8")
     st = Stack(config=config, base=free_base_port(), speed=20)
     try:
         await st.up(("plant", "plc"))
@@ -202,10 +210,16 @@ async def wait_until_alive(eng: Client) -> bool:
     return True
 
 
-async def _spawn(*argv: str, cwd: Path = ROOT) -> asyncio.subprocess.Process:
-    return await asyncio.create_subprocess_exec(
-        *argv, cwd=cwd, stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL
-    )
+async def _spawn(*argv: str, log: Path, cwd: Path = ROOT) -> asyncio.subprocess.Process:
+    """Start an example; its stdout and stderr go to ``log`` (printed by pytest on a failure)."""
+    with log.open("wb") as out:
+        return await asyncio.create_subprocess_exec(
+            *argv, cwd=cwd, stdout=out, stderr=asyncio.subprocess.STDOUT
+        )
+
+
+def _tail(log: Path) -> None:
+    print(f"--- {log.name}:\n" + "\n".join(log.read_text(errors="replace").splitlines()[-40:]))
 
 
 async def _reap(proc: asyncio.subprocess.Process) -> None:
@@ -215,12 +229,14 @@ async def _reap(proc: asyncio.subprocess.Process) -> None:
 
 
 @pytest.mark.process
-async def test_the_asyncua_example_drives_lic1_and_the_watchdog_sheds_it_when_killed(stack: Stack) -> None:
+async def test_the_asyncua_example_drives_lic1_and_the_watchdog_sheds_it_when_killed(
+    stack: Stack, tmp_path: Path
+) -> None:
     eng = await _hand_lic1(stack.plc_url)
     home = str(session_home().root)
     proc = await _spawn(
         sys.executable, "examples/external_asyncua.py", "--url", stack.plc_url, "--home", home,
-        "--name", TEST_EXTERNAL, "--sp", str(SP_EXAMPLE), "--period", "0.25",
+        "--name", TEST_EXTERNAL, "--sp", str(SP_EXAMPLE), "--period", "0.25", log=tmp_path / "example.log",
     )  # fmt: skip
     try:
         await _drives_lic1_to_the_example_sp(eng, proc)
@@ -234,6 +250,7 @@ async def test_the_asyncua_example_drives_lic1_and_the_watchdog_sheds_it_when_ki
         await wait_until(shed, 30, what="the watchdog sheds LIC1 to AUTO")
         shed_at = await _read(eng, "PLC.Status.ModelTime")
         timeout = await _read(eng, "PLC.External.Timeout")
+        assert timeout == WATCHDOG_S
         assert await _read(eng, "PLC.External.Alive") is False
         # Shed within the timeout (plus a scan and the poll) of the last heartbeat, not before it.
         assert 0 < shed_at - killed_at <= timeout + 2 * SITE.plc.scan_period_s + 20 * 0.5
@@ -241,6 +258,7 @@ async def test_the_asyncua_example_drives_lic1_and_the_watchdog_sheds_it_when_ki
     finally:
         await _reap(proc)
         await eng.disconnect()
+        _tail(tmp_path / "example.log")
 
 
 def _node_modules_ready() -> bool:
@@ -266,6 +284,7 @@ async def test_the_node_opcua_example_drives_lic1_and_hands_it_back_on_sigterm(
     proc = await _spawn(
         NODE, "controller.mjs", "--url", stack.plc_url, "--home", home, "--name", TEST_EXTERNAL,
         "--sp", str(SP_EXAMPLE), "--period", "0.25", "--pki", str(tmp_path / "node-pki"), cwd=work,
+        log=tmp_path / "example.log",
     )  # fmt: skip
     try:
         await _drives_lic1_to_the_example_sp(eng, proc)
@@ -275,3 +294,4 @@ async def test_the_node_opcua_example_drives_lic1_and_hands_it_back_on_sigterm(
     finally:
         await _reap(proc)
         await eng.disconnect()
+        _tail(tmp_path / "example.log")
