@@ -15,7 +15,13 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, TEST_PASSWORDS, TEST_ROLES  # tests/ is on pytest's pythonpath (pyproject)
+from helpers import (  # tests/ is on pytest's pythonpath (pyproject)
+    ROOT,
+    TEST_EXTERNAL,
+    TEST_PASSWORDS,
+    TEST_ROLES,
+)
+from tanklab_io.external import add_external
 from tanklab_io.home import SecurityHome
 from tanklab_io.pki import init_pki
 from tanklab_io.users import Credentials, UsersFile, write_credentials
@@ -37,6 +43,7 @@ def security_home(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Security
         users.add(name, role, TEST_PASSWORDS[name])
     users.save()
     write_credentials(home.credentials_file, Credentials("engineer", TEST_PASSWORDS["engineer"]))
+    add_external(home, TEST_EXTERNAL)  # the External identity (decision 0055)
     saved = {k: os.environ.get(k) for k in ("TANKLAB_HOME", "TANKLAB_USER", "TANKLAB_PASSWORD")}
     os.environ["TANKLAB_HOME"] = str(home.root)
     os.environ.pop("TANKLAB_USER", None)

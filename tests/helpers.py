@@ -28,6 +28,7 @@ from tanklab_testing.waits import hang_bound, wait_until, wait_until_sync
 
 __all__ = [
     "ROOT",
+    "TEST_EXTERNAL",
     "TEST_PASSWORDS",
     "TEST_ROLES",
     "TierProcess",
@@ -45,6 +46,10 @@ __all__ = [
     "wait_until",
     "wait_until_sync",
 ]
+
+TEST_EXTERNAL = "testctl"
+"""The session home's external controller (``tankctl user add-external``; certificate
+``external-testctl``, role External on the PLC)."""
 
 TEST_ROLES = {"observer": Role.OBSERVER, "operator": Role.OPERATOR, "engineer": Role.ENGINEER}
 """The login users of the test security home (see conftest.security_home)."""
@@ -93,7 +98,10 @@ def server_security(audit_dir: Path | None = None) -> ServerSecurity:
 def identity(
     user: str = "engineer", *, tier: str | None = None, policy: str = "Basic256Sha256"
 ) -> ClientIdentity:
-    """A test user's login (``user``), or a tier's certificate identity (``tier``)."""
+    """A test user's login (``user``), or a tier's certificate identity (``tier``; ``external``
+    for the session's External identity)."""
+    if tier == "external":
+        return ClientIdentity(session_home(), f"external-{TEST_EXTERNAL}", policy=policy)
     if tier is not None:
         return ClientIdentity(session_home(), tier, policy=policy)
     return ClientIdentity(session_home(), "cli", Credentials(user, TEST_PASSWORDS[user]), policy=policy)

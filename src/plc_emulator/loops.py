@@ -23,7 +23,7 @@ from plc_emulator.pid import Pid, PidConfig
 from plc_emulator.single_loop import SingleLoopBlock
 from plc_emulator.tuning import nlpi_gains
 from tanklab.config import LoopSpec, SiteConfig
-from tanklab.enums import GainSource, LoopMode
+from tanklab.enums import GainSource, LoopMode, RemoteSource
 from tanklab.gains import GainBox, LoopGains, LoopLimits, PidGains
 
 __all__ = ["ERROR_SCALE", "Group", "Loop", "build_groups", "group_gains", "make_loops"]
@@ -58,6 +58,7 @@ class Loop:
     gain_box: GainBox | None = None  # the admissible SetGains (1 x 1), from the config
     staged_source: GainSource | None = None  # the GainSource the staged set brings at the boundary
     source: GainSource = GainSource.FIXED
+    remote_source: RemoteSource = RemoteSource.SUPERVISOR  # who drives the loop in REMOTE
     mode_changed_scan: int = -1  # scan_count when the mode last changed (pending until that scan ran)
     mv: float = 0.0
     pv_m: float = math.nan  # PV used this scan [m]; NaN while bad

@@ -10,7 +10,11 @@ A scan (period Ts of model time) does, in order:
    applied MV; NL-PI and MRAC re-initialise from it), and the supervisor's gains staged since
    the last scan are dropped. ENGINEER gains, and an engineer's or operator's staged request
    (SetGains, ResetGains), are never touched by the watchdog. Supervisor gains are accepted
-   again only after the heartbeat has been good for ``good_scans_to_accept`` scans.
+   again only after the heartbeat has been good for ``good_scans_to_accept`` scans. Only loops
+   whose ``RemoteSource`` is SUPERVISOR shed on the supervisor's timeout; a loop handed to an
+   external controller (``RemoteSource`` EXTERNAL, decision 0055) has a watchdog of its own on
+   ``PLC.External.Heartbeat``, with the same timeout and rule, and on its timeout such a loop in
+   REMOTE sheds to AUTO the same bumpless way.
 2. **Boundary**: gains staged since the last scan (``SetGains``, ``ResetGains``) take effect
    now, all three at once, so no scan runs with half-applied gains, and the loop's
    ``GainSource`` changes with them.
@@ -73,7 +77,7 @@ from plc_emulator.pid import Pid
 from plc_emulator.status import InterlockStatus, LoopStatus, PlcStatus, TankStatus
 from plc_emulator.watchdog import Watchdog
 from tanklab.config import SiteConfig
-from tanklab.enums import GainSource, LoopMode
+from tanklab.enums import GainSource, LoopMode, RemoteSource
 from tanklab.gains import LoopGains
 
 FloatArray = NDArray[np.float64]
@@ -191,6 +195,10 @@ class PlcProgram:
             timeout_s=plc.watchdog.timeout_s if watchdog_timeout_s is None else watchdog_timeout_s,
             good_scans_needed=plc.watchdog.good_scans_to_accept,
         )
+        self.external_watchdog = Watchdog(
+            timeout_s=self.watchdog.timeout_s, good_scans_needed=plc.watchdog.good_scans_to_accept
+        )
+        """The external controller's heartbeat watchdog (same timeout and rule as the supervisor's)."""
         self.fallback = plc.watchdog.fallback
         self.interlocks = [
             Interlock(tanks.index(il.tank), il.tank, il.high_high_m, il.reset_below_m)
@@ -206,6 +214,7 @@ class PlcProgram:
         )
         self.loops = make_loops(site)
         self._pending_heartbeat: int | None = None
+        self._pending_external_heartbeat: int | None = None
         self.pid_groups: list[Group]
         self.groups: list[Group]
         self.pid_groups, self.groups = build_groups(self.loops, self.ts_s)
@@ -322,6 +331,24 @@ class PlcProgram:
     def heartbeat(self, value: int) -> None:
         """The supervisor wrote its heartbeat (any change counts as alive at the next scan)."""
         self._pending_heartbeat = int(value)
+
+    def external_heartbeat(self, value: int) -> None:
+        """The external controller wrote its heartbeat (any change counts as alive at the next scan)."""
+        self._pending_external_heartbeat = int(value)
+
+    def set_remote_source(self, name: str, source: RemoteSource) -> None:
+        """Engineer: hand a loop's REMOTE to the supervisor or to an external controller.
+
+        Refused (ValueError, nothing changed) while the loop is in REMOTE: the owner of a running
+        REMOTE loop never changes under it; switch it to AUTO or MANUAL first.
+        """
+        lp = self.loop(name)
+        source = RemoteSource(source)
+        if source is lp.remote_source:
+            return
+        if lp.mode is LoopMode.REMOTE:
+            raise ValueError(f"{name} is in REMOTE: RemoteSource changes only outside REMOTE")
+        lp.remote_source = source
 
     @property
     def supervisor_trusted(self) -> bool:
@@ -519,6 +546,8 @@ class PlcProgram:
         self.t_s = float(inputs.t_s)
         if self._run_watchdog():
             self._fall_back()
+        if self._run_external_watchdog():
+            self._shed(RemoteSource.EXTERNAL)
         self._apply_staged_gains()
         self._read_inputs(levels.tolist(), delivered.tolist(), bool(inputs.io_healthy))
         self._execute_blocks()
@@ -555,9 +584,21 @@ class PlcProgram:
         value, self._pending_heartbeat = self._pending_heartbeat, None
         return self.watchdog.update(self.t_s, value, self.ts_s)
 
+    def _run_external_watchdog(self) -> bool:
+        """Update the external controller's Alive; return whether its timeout has expired."""
+        value, self._pending_external_heartbeat = self._pending_external_heartbeat, None
+        return self.external_watchdog.update(self.t_s, value, self.ts_s)
+
+    def _shed(self, source: RemoteSource) -> None:
+        """Loops in REMOTE driven by ``source`` -> AUTO at their current setpoint (bumpless)."""
+        for lp in self.loops:
+            if lp.mode is LoopMode.REMOTE and lp.remote_source is source:
+                self.set_mode(lp.spec.name, LoopMode.AUTO)
+
     def _fall_back(self) -> None:
         """Supervisor lost: the supervisor's staged gains dropped, supervisor gains -> FALLBACK,
-        REMOTE -> AUTO (ENGINEER gains and an engineer's or a reset's staged set stay).
+        REMOTE -> AUTO for the loops the supervisor drives (ENGINEER gains, an engineer's or a
+        reset's staged set and the loops handed to an external controller stay).
 
         Runs every scan while the supervisor is away (the co-simulation without one: always), so
         each loop is only read unless it has something to undo.
@@ -571,7 +612,7 @@ class PlcProgram:
                 lp.applied = lp.fixed if self.fallback == "fixed" else lp.last_accepted
                 lp.source = GainSource.FALLBACK
                 changed = True
-            if lp.mode is LoopMode.REMOTE:
+            if lp.mode is LoopMode.REMOTE and lp.remote_source is RemoteSource.SUPERVISOR:
                 self.set_mode(lp.spec.name, LoopMode.AUTO)
         if changed:
             self._set_pid_gains()
@@ -689,6 +730,7 @@ class PlcProgram:
                     lp.applied,
                     lp.source,
                     bool(lp.pv_bad),
+                    lp.remote_source,
                 ),
             )
             for lp, name, spec_lo, spec_hi in self._loop_consts
@@ -712,6 +754,7 @@ class PlcProgram:
                 tuple(tanks),
                 tuple(trips),
                 self.alarms.flags(),
+                bool(self.external_watchdog.alive),
             ),
         )
 

@@ -25,13 +25,16 @@ RUNTIME_OWNED_TAGS = (
     paths.plc.overruns,
     paths.plc.heartbeat,
     paths.plc.supervisor_timeout,
+    paths.plc.external_heartbeat,
+    paths.plc.external_timeout,
     *paths.link_status_paths(paths.plc.plant_link).values(),
     *paths.alarm_summary_paths("plc").values(),
 )
 """PLC variables the runtime publishes, not :func:`status_values` (plus ``PLC.LIC*.Block`` and
-``PLC.Identity.*``, constant): its scan timing, the supervisor's heartbeat and timeout, its
-field link's status, and the alarm summary (published after condition events and when the rate
-window moves on: :class:`tanklab_io.conditions.summary.SummaryPublisher`)."""
+``PLC.Identity.*``, constant): its scan timing, the supervisor's and the external controller's
+heartbeats and timeouts, its field link's status, and the alarm summary (published after
+condition events and when the rate window moves on:
+:class:`tanklab_io.conditions.summary.SummaryPublisher`)."""
 
 
 def status_values(status: PlcStatus) -> dict[str, Any]:
@@ -47,7 +50,9 @@ def status_values(status: PlcStatus) -> dict[str, Any]:
     v: dict[str, Any] = {}
     alarms = status.alarms
     for lp, alarm_pv_bad in zip(status.loops, alarms.pv_bad, strict=True):
-        sp, sp_low, sp_high, pv, mv, mode, manual, remote, kp, ki, kd, source, pv_bad = _loop_paths(lp.name)
+        sp, sp_low, sp_high, pv, mv, mode, manual, remote, kp, ki, kd, source, pv_bad, owner = _loop_paths(
+            lp.name
+        )
         v[sp] = lp.sp_m
         v[sp_low] = lp.sp_low_m
         v[sp_high] = lp.sp_high_m
@@ -63,11 +68,13 @@ def status_values(status: PlcStatus) -> dict[str, Any]:
             v[kp], v[ki], v[kd] = g.kp, g.ki, g.kd
         v[source] = int(lp.gain_source)
         v[pv_bad] = alarm_pv_bad
+        v[owner] = int(lp.remote_source)
     plc = paths.plc
     v[plc.scan] = status.scan
     v[plc.io_healthy] = status.io_healthy
     v[plc.model_time] = status.t_s
     v[plc.supervisor_alive] = status.supervisor_alive
+    v[plc.external_alive] = status.external_alive
     v[plc.io_fault] = alarms.io_fault
     v[plc.supervisor_lost] = alarms.supervisor_lost
     for tank, (a_high, a_low, a_high_high) in zip(status.tanks, alarms.levels, strict=True):
@@ -100,6 +107,7 @@ def _loop_paths(loop: str) -> tuple[str, ...]:
         lp.kd,
         lp.gain_source,
         paths.plc.pv_bad_alarm(loop),
+        lp.remote_source,
     )
 
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tanklab.enums import GainSource, LoopMode
+from tanklab.enums import GainSource, LoopMode, RemoteSource
 from tanklab.gains import LoopGains
 
 if TYPE_CHECKING:
@@ -36,6 +36,7 @@ def retained(program: PlcProgram) -> dict[str, Any]:
             "sp_m": lp.sp_m,
             "sp_limits_m": list(program.sp_limits(lp.spec.name)),
             "mode": lp.mode.name,
+            "remote_source": lp.remote_source.name,
             "gains": [g.kp, g.ki, g.kd] if g is not None else None,
             "source": lp.source.name,
             "manual_mv": lp.manual_mv,
@@ -84,6 +85,8 @@ def restore_retained(program: PlcProgram, data: Mapping[str, Any]) -> list[str]:
                 if source is not GainSource.ENGINEER:  # last_accepted: the supervisor's gains
                     lp.last_accepted = lp.applied
                 lp.source = source
+            # The REMOTE owner before the mode (absent in files of earlier versions: SUPERVISOR).
+            lp.remote_source = RemoteSource[str(entry.get("remote_source", "SUPERVISOR"))]
             # Mode before the manual value: entering MANUAL tracks the applied MV.
             program.set_mode(name, LoopMode[str(entry["mode"])])
             lp.mode_changed_scan = -1  # a restored mode is not a change in progress

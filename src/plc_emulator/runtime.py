@@ -255,7 +255,11 @@ async def run_plc(
         await warm_resume(program, field_link, hold_outputs=not lockstep)
     await server.start()
     await server.publish(
-        {paths.plc.scan_period: ts, paths.plc.supervisor_timeout: program.watchdog.timeout_s}
+        {
+            paths.plc.scan_period: ts,
+            paths.plc.supervisor_timeout: program.watchdog.timeout_s,
+            paths.plc.external_timeout: program.external_watchdog.timeout_s,
+        }
     )
     if warm:
         await server.publish_status(program.status())

@@ -29,6 +29,14 @@ wholly before or after a scan, at the model time of the last scan; the events re
 the core's order (the projection publishes one batch at a time, and the runtime asks for the
 scan's batch before its first await after the scan).
 
+**Who drives a loop in REMOTE** (decision 0055): each loop's ``RemoteSource`` (engineer,
+retentive) names its owner, SUPERVISOR or EXTERNAL. A write of ``RemoteMV`` or ``Mode`` by the
+supervisor's identity on an EXTERNAL loop, or by an External identity on a SUPERVISOR loop, is
+refused with BadUserAccessDenied before the program sees it (the old value stays; the write
+guard has already checked the role against the contract's writers). ``RemoteSource`` changes only
+while the loop is not in REMOTE (BadInvalidState). ``External.Heartbeat`` feeds the external
+watchdog; unlike the supervisor's it acknowledges no lock-step scan.
+
 The program reports its state as a value (:class:`plc_emulator.status.PlcStatus`);
 :func:`plc_emulator.publish.status_values` maps it to the contract's paths, and
 :meth:`PlcServer.publish_status` publishes it.
@@ -49,7 +57,7 @@ from plc_emulator.writes import ProgramWrite, program_writes
 from tanklab import paths
 from tanklab.alarms import CallStatus, ConditionCall, ConditionEvent
 from tanklab.config import SiteConfig
-from tanklab.enums import GainSource
+from tanklab.enums import GainSource, LoopMode, RemoteSource
 from tanklab.handlers import HandlerTable
 from tanklab.tags import HEARTBEAT_PATH, Role, Tag, plc_tags, tags_by_path
 from tanklab_io.conditions import ModelUtc, UaConditions
@@ -64,6 +72,10 @@ _STATUS = {
     GainStatus.OUT_OF_RANGE: ua.StatusCodes.BadOutOfRange,
     GainStatus.INVALID_STATE: ua.StatusCodes.BadInvalidState,
 }
+
+
+_REMOTE_ROLES = {Role.SUPERVISOR: RemoteSource.SUPERVISOR, Role.EXTERNAL: RemoteSource.EXTERNAL}
+"""The certificate roles that drive loops in REMOTE, and the RemoteSource each one owns."""
 
 
 class PlcServer:
@@ -184,9 +196,62 @@ class PlcServer:
         """The handler of each writable PLC variable: the program's (:func:`program_writes`),
         its refusal answered BadOutOfRange."""
         table: HandlerTable[WriteHandler] = HandlerTable()
+        owned = {}
+        for lp in self.program.loops:
+            loop = paths.plc.loop(lp.spec.name)
+            owned[loop.remote_mv] = owned[loop.mode] = lp.spec.name
+        sources = {paths.plc.loop(lp.spec.name).remote_source: lp.spec.name for lp in self.program.loops}
         for path, apply in program_writes(self.program).items():
-            table.on(path, self._heartbeat(apply) if path == HEARTBEAT_PATH else self._request(apply))
+            if path == HEARTBEAT_PATH:
+                handler = self._heartbeat(apply)
+            elif path == paths.plc.external_heartbeat:
+                handler = self._external_heartbeat(apply)
+            elif path in owned:
+                handler = self._owned(owned[path], self._request(apply))
+            elif path in sources:
+                handler = self._remote_source(sources[path], self._request(apply))
+            else:
+                handler = self._request(apply)
+            table.on(path, handler)
         return table
+
+    def _owned(self, loop: str, inner: WriteHandler) -> WriteHandler:
+        """``RemoteMV`` or ``Mode`` of ``loop``: the supervisor's identity only on a SUPERVISOR
+        loop, an External identity only on an EXTERNAL one (BadUserAccessDenied otherwise)."""
+
+        def handler(tag: Tag, value: Any) -> ua.StatusCode | None:
+            user = CURRENT_USER.get()
+            role = user.tank_role if isinstance(user, TankUser) else None
+            wanted = _REMOTE_ROLES.get(role) if role is not None else None
+            if wanted is not None and self.program.loop(loop).remote_source is not wanted:
+                log.info(
+                    "write to %s by %s refused: the loop's RemoteSource is not %s",
+                    tag.path,
+                    role,
+                    wanted.name,
+                )
+                return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+            return inner(tag, value)
+
+        return handler
+
+    def _remote_source(self, loop: str, inner: WriteHandler) -> WriteHandler:
+        """``RemoteSource`` of ``loop``: BadInvalidState while the loop is in REMOTE."""
+
+        def handler(tag: Tag, value: Any) -> ua.StatusCode | None:
+            lp = self.program.loop(loop)
+            if lp.mode is LoopMode.REMOTE and int(value) != int(lp.remote_source):
+                log.info("write to %s refused: %s is in REMOTE", tag.path, loop)
+                return ua.StatusCode(ua.StatusCodes.BadInvalidState)
+            return inner(tag, value)
+
+        return handler
+
+    def _external_heartbeat(self, apply: ProgramWrite) -> WriteHandler:
+        def handler(tag: Tag, value: Any) -> ua.StatusCode | None:
+            return self._applied(tag, apply, value)
+
+        return handler
 
     def method_handlers(self) -> HandlerTable[MethodHandler]:
         """The handler of each PLC method: each loop's gain calls and the interlock reset."""

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from tanklab.enums import GainSource, LoopMode
+from tanklab.enums import GainSource, LoopMode, RemoteSource
 from tanklab.gains import LoopGains
 
 __all__ = ["InterlockStatus", "LoopStatus", "PlcStatus", "TankStatus"]
@@ -44,6 +44,7 @@ class LoopStatus(NamedTuple):
     gains : the applied (Kp, Ki, Kd); None for a block without PID gains (MRAC, NL-PI).
     gain_source : where the applied gains came from.
     pv_bad : this scan's PV was bad (the loop ran on its substitute).
+    remote_source : who drives the loop in REMOTE (SUPERVISOR or EXTERNAL).
     """
 
     name: str
@@ -58,6 +59,7 @@ class LoopStatus(NamedTuple):
     gains: LoopGains | None
     gain_source: GainSource
     pv_bad: bool
+    remote_source: RemoteSource = RemoteSource.SUPERVISOR
 
 
 class TankStatus(NamedTuple):
@@ -120,6 +122,7 @@ class PlcStatus(NamedTuple):
     tanks : per tank, in plant order.
     interlocks : per configured interlock, in config order.
     alarms : the alarm booleans (the alarm manager's).
+    external_alive : the external heartbeat's watchdog sees it changing (decision 0055).
     """
 
     scan: int
@@ -131,3 +134,4 @@ class PlcStatus(NamedTuple):
     tanks: tuple[TankStatus, ...]
     interlocks: tuple[InterlockStatus, ...]
     alarms: AlarmFlags
+    external_alive: bool = False

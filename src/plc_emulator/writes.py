@@ -1,7 +1,8 @@
 """The PLC program's writable items: one handler per writable tag, for every transport.
 
 Each writable variable of the PLC contract (``SP``, ``SPLow``, ``SPHigh``, ``Mode``,
-``ManualMV``, ``RemoteMV`` of each loop, and ``Supervisor.Heartbeat``) gets its own handler,
+``ManualMV``, ``RemoteMV``, ``RemoteSource`` of each loop, ``Supervisor.Heartbeat`` and
+``External.Heartbeat``) gets its own handler,
 attached to its path (:mod:`tanklab.paths`) in :func:`program_writes`: the program setter it
 goes to, with the value converted to the setter's type. The OPC UA server
 (:class:`plc_emulator.server.PlcServer`) wraps these handlers in its status codes; the
@@ -20,7 +21,7 @@ from weakref import WeakKeyDictionary
 
 from plc_emulator.program import PlcProgram
 from tanklab import paths
-from tanklab.enums import LoopMode
+from tanklab.enums import LoopMode, RemoteSource
 from tanklab.handlers import HandlerTable
 
 ProgramWrite = Callable[[Any], None]
@@ -31,6 +32,7 @@ def program_writes(program: PlcProgram) -> HandlerTable[ProgramWrite]:
     """The handler of each writable PLC variable, by path."""
     table: HandlerTable[ProgramWrite] = HandlerTable()
     table.on(paths.plc.heartbeat, lambda value: program.heartbeat(int(value)))
+    table.on(paths.plc.external_heartbeat, lambda value: program.external_heartbeat(int(value)))
     for lp in program.loops:
         _loop_writes(table, program, lp.spec.name)
     return table
@@ -44,6 +46,7 @@ def _loop_writes(table: HandlerTable[ProgramWrite], program: PlcProgram, name: s
     table.on(loop.mode, lambda value: program.set_mode(name, LoopMode(int(value))))
     table.on(loop.manual_mv, lambda value: program.set_manual_mv(name, float(value)))
     table.on(loop.remote_mv, lambda value: program.set_remote_mv(name, float(value)))
+    table.on(loop.remote_source, lambda value: program.set_remote_source(name, RemoteSource(int(value))))
 
 
 _TABLES: WeakKeyDictionary[PlcProgram, HandlerTable[ProgramWrite]] = WeakKeyDictionary()

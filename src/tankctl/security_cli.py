@@ -10,6 +10,13 @@
     tankctl user add NAME --role ROLE [--home DIR] [--password-stdin] [--replace]
     tankctl user list [--home DIR]
     tankctl user remove NAME [--home DIR]
+    tankctl user add-external NAME [--home DIR] [--host HOST ...] [--days N] [--replace]
+    tankctl user remove-external NAME [--home DIR]
+
+``user add-external`` issues an external controller's certificate from the site CA
+(``own/external-NAME.der``, ApplicationUri ``urn:tanklab:external-NAME``) and records it in role
+External (``external.json``, :mod:`tanklab_io.external`); an external controller has no password,
+so ``user add --role External`` is refused with a one-line pointer to ``add-external``.
 
 ``--home`` defaults to ``$TANKLAB_HOME``, else ``$XDG_CONFIG_HOME/tanklab``, else
 ``~/.config/tanklab``. ``user add`` reads the password from stdin (``--password-stdin``, one
@@ -36,7 +43,9 @@ import typer
 
 from tankctl.usage import OneLineUsage
 from tanklab.errors import TanklabError
+from tanklab.tags import Role
 from tanklab_io.containers import CONTAINER_GID, CONTAINER_UID, container_root, lay_out
+from tanklab_io.external import add_external, application_uri, load_external, remove_external
 from tanklab_io.home import SecurityHome, default_home
 from tanklab_io.pki import (
     DEFAULT_DAYS,
@@ -63,7 +72,10 @@ _T = TypeVar("_T")
 pki_app = typer.Typer(
     help="The PKI: CA, application certificates, trusted certificates, CRL.", no_args_is_help=True
 )
-user_app = typer.Typer(help="Users who log in with a name and password.", no_args_is_help=True)
+user_app = typer.Typer(
+    help="Users who log in with a name and password; external controllers (certificate, role External).",
+    no_args_is_help=True,
+)
 
 HomeOpt = Annotated[
     Path | None,
@@ -284,6 +296,11 @@ def user_add(
 ) -> None:
     """Add a user with a login role; the password is never echoed."""
     matches = [r for r in LOGIN_ROLES if r.value.lower() == role.lower()]
+    if role.lower() == Role.EXTERNAL.value.lower():
+        _fail(
+            f"user add: --role External is a certificate identity, not a password login: "
+            f"use `tankctl user add-external {name}`"
+        )
     if not matches:
         _fail(f"user add: --role must be one of {', '.join(r.value for r in LOGIN_ROLES)}, got {role!r}")
     path = _writable_home(home).users_file
@@ -301,15 +318,19 @@ def user_add(
 def user_list(home: HomeOpt = None) -> None:
     """List users and their roles."""
     path = _home(home).users_file
+    sec = _home(home)
     users = _guard(lambda: UsersFile.load(path))
-    if not users.names():
+    external = _guard(lambda: load_external(sec))
+    if not users.names() and not external:
         typer.echo(f"no users in {path}")
         return
-    width = max(len(n) for n in users.names())
-    for name in users.names():
-        record = users.get(name)
+    rows = [(n, users.get(n)) for n in users.names()]
+    width = max(len(n) for n in [*users.names(), *external])
+    for name, record in rows:
         assert record is not None
         typer.echo(f"{name.ljust(width)}  {record.role.value}")
+    for name in sorted(external):
+        typer.echo(f"{name.ljust(width)}  {Role.EXTERNAL.value} (certificate {application_uri(name)})")
 
 
 @user_app.command("remove", cls=OneLineUsage)
@@ -323,6 +344,45 @@ def user_remove(
     _guard(lambda: users.remove(name))
     _guard(users.save)
     typer.echo(f"removed user {name} from {path}")
+
+
+@user_app.command("add-external", cls=OneLineUsage)
+def user_add_external(
+    name: Annotated[str, typer.Argument(help="Controller name: [A-Za-z0-9_.-], 1 to 48 characters.")],
+    home: HomeOpt = None,
+    host: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--host", help="Host name or IP for the SubjectAltName (repeat; default localhost, 127.0.0.1)."
+        ),
+    ] = None,
+    days: Annotated[
+        int, typer.Option("--days", min=1, help="Validity of the certificate [days].")
+    ] = DEFAULT_DAYS,
+    replace: Annotated[
+        bool, typer.Option(help="Re-issue the certificate of an existing controller.")
+    ] = False,
+) -> None:
+    """Add an external controller: a client certificate of the site PKI, in role External."""
+    sec = _writable_home(home)
+    _upgraded(sec.pki)
+    hosts = tuple(host) if host else DEFAULT_HOSTS
+    cert, key = _guard(lambda: add_external(sec, name, hosts=hosts, days=days, replace=replace))
+    typer.echo(f"added external controller {name} (External, {application_uri(name)})")
+    typer.echo(f"certificate  {cert}")
+    typer.echo(f"private key  {key}")
+    typer.echo(f"trust        {sec.pki.ca_cert} and {sec.pki.crl_file}")
+
+
+@user_app.command("remove-external", cls=OneLineUsage)
+def user_remove_external(
+    name: Annotated[str, typer.Argument(help="External controller to remove.")],
+    home: HomeOpt = None,
+) -> None:
+    """Remove an external controller from role External (revoke its certificate with `pki revoke`)."""
+    sec = _home(home)
+    _guard(lambda: remove_external(sec, name))
+    typer.echo(f"removed external controller {name}")
 
 
 def register(app: typer.Typer) -> None:

@@ -23,6 +23,19 @@ class LoopMode(IntEnum):
     REMOTE = 2
 
 
+class RemoteSource(IntEnum):
+    """Who drives a loop in REMOTE: ``PLC.LIC{j}.RemoteSource`` (engineer, retentive).
+
+    SUPERVISOR: the supervisor's identity writes ``RemoteMV`` (and switches AUTO <-> REMOTE); the
+    supervisor's heartbeat watchdog sheds the loop.
+    EXTERNAL: a certificate identity in role External does, and the external heartbeat's
+    watchdog (``PLC.External.*``) sheds it; the supervisor's writes to the loop are refused.
+    """
+
+    SUPERVISOR = 0
+    EXTERNAL = 1
+
+
 class GainSource(IntEnum):
     """Where the gains a PID loop applies came from (``PLC.LIC{j}.GainSource``).
 

@@ -223,6 +223,7 @@ class LoopPaths:
         "pv",
         "release_gains",
         "remote_mv",
+        "remote_source",
         "reset_gains",
         "root",
         "set_gains",
@@ -245,6 +246,8 @@ class LoopPaths:
         self.sp_high = f"{root}.SPHigh"
         self.manual_mv = f"{root}.ManualMV"
         self.remote_mv = f"{root}.RemoteMV"
+        self.remote_source = f"{root}.RemoteSource"
+        """Who drives the loop in REMOTE: SUPERVISOR or EXTERNAL (engineer, retentive)."""
         self.kp = f"{root}.Kp"
         self.ki = f"{root}.Ki"
         self.kd = f"{root}.Kd"
@@ -288,6 +291,12 @@ class PlcPaths:
     """The supervisor's heartbeat (UInt32): written every scan it acknowledges, checked by the PLC."""
     supervisor_timeout = "PLC.Supervisor.Timeout"
     supervisor_alive = "PLC.Supervisor.Alive"
+    external = "PLC.External"
+    """The external controller's link object (decision 0055)."""
+    external_heartbeat = "PLC.External.Heartbeat"
+    """The external controller's heartbeat (UInt32, role External): any change counts as alive."""
+    external_timeout = "PLC.External.Timeout"
+    external_alive = "PLC.External.Alive"
     interlock_reset = "PLC.Interlock.Reset"
     status = "PLC.Status"
     """The status object (the source node of the IoFault alarm)."""

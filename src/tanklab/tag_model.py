@@ -23,6 +23,10 @@ class Role(StrEnum):
     ENGINEER = "Engineer"
     SUPERVISOR = "Supervisor"
     PLC = "PLC"
+    EXTERNAL = "External"
+    """An external controller's certificate identity (``tankctl user add-external``): writes
+    ``RemoteMV`` and ``Mode`` (AUTO <-> REMOTE) of the loops an engineer handed to it
+    (``RemoteSource`` EXTERNAL) and ``PLC.External.Heartbeat``; never a password login."""
 
 
 class DataType(StrEnum):

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from tanklab.config import SiteConfig
-from tanklab.enums import GainSource, LoopMode, MpcStatus, SensorFault, SupervisorMode
+from tanklab.enums import GainSource, LoopMode, MpcStatus, RemoteSource, SensorFault, SupervisorMode
 from tanklab.identity import SiteIdentity, canonical_json
 from tanklab.paths import (
     ALARM_SUMMARY_ITEMS,
@@ -362,10 +362,15 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         b.var(
             lpp.mode,
             DataType.INT32,
-            "MANUAL (ManualMV drives), AUTO (the block drives), REMOTE (the supervisor's RemoteMV drives).",
+            "MANUAL (ManualMV drives), AUTO (the block drives), REMOTE (RemoteMV drives). The "
+            "supervisor, or the External identity on a loop handed to it (RemoteSource), switches "
+            "between AUTO and REMOTE only.",
             eu_range=enum_range(LoopMode),
-            writers=OPERATOR_UP | {Role.SUPERVISOR},
-            restricted=((Role.SUPERVISOR, frozenset({int(LoopMode.AUTO), int(LoopMode.REMOTE)})),),
+            writers=OPERATOR_UP | {Role.SUPERVISOR, Role.EXTERNAL},
+            restricted=(
+                (Role.SUPERVISOR, frozenset({int(LoopMode.AUTO), int(LoopMode.REMOTE)})),
+                (Role.EXTERNAL, frozenset({int(LoopMode.AUTO), int(LoopMode.REMOTE)})),
+            ),
             enum=LoopMode,
             initial=int(lp.mode_enum),
         )
@@ -392,10 +397,23 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         b.var(
             lpp.remote_mv,
             DataType.DOUBLE,
-            f"Supervisor's output in REMOTE [{pump.unit}].",
+            f"Output in REMOTE [{pump.unit}]: written by the supervisor, or by the External "
+            "identity when RemoteSource is EXTERNAL (the other one is refused).",
             unit=pump.unit,
             eu_range=(mv_lo, mv_hi),
-            writers=frozenset({Role.SUPERVISOR}),
+            writers=frozenset({Role.SUPERVISOR, Role.EXTERNAL}),
+        )
+        b.var(
+            lpp.remote_source,
+            DataType.INT32,
+            "Who drives the loop in REMOTE (engineer; retentive): SUPERVISOR (the supervisor's "
+            "identity and heartbeat) or EXTERNAL (an External certificate identity and "
+            "PLC.External.Heartbeat). Changed only while the loop is not in REMOTE "
+            "(BadInvalidState).",
+            eu_range=enum_range(RemoteSource),
+            writers=ENGINEER_ONLY,
+            enum=RemoteSource,
+            initial=int(RemoteSource.SUPERVISOR),
         )
         g = lp.gains
         for gain, text, val in (
@@ -484,6 +502,24 @@ def plc_tags(site: SiteConfig) -> list[Tag]:
         initial=plc_cfg.watchdog.timeout_s,
     )
     b.var(plc.supervisor_alive, DataType.BOOLEAN, "False once no heartbeat change came within Timeout.")
+    b.var(
+        plc.external_heartbeat,
+        DataType.UINT32,
+        "Written by the external controller (role External) every period (any change counts as "
+        "alive); loops in REMOTE with RemoteSource EXTERNAL shed to AUTO when it stops.",
+        writers=frozenset({Role.EXTERNAL}),
+    )
+    b.var(
+        plc.external_timeout,
+        DataType.DOUBLE,
+        "External heartbeat timeout in model time [s] (the supervisor's).",
+        unit="s",
+        eu_range=(0.0, 3600.0),
+        initial=plc_cfg.watchdog.timeout_s,
+    )
+    b.var(
+        plc.external_alive, DataType.BOOLEAN, "False once no external heartbeat change came within Timeout."
+    )
     for tank in site.plant.tanks:
         i = tank.name[1:]
         b.var(
@@ -795,7 +831,8 @@ def render_markdown(site: SiteConfig) -> str:
         "ApplicationUris: " + ", ".join(f"`{u}`" for u in APPLICATION_URIS.values()) + ".",
         "",
         "Roles: Observer (read), Operator, Engineer, Supervisor (the supervisor's identity), PLC (the",
-        "PLC's identity on the plant). Reading is open to every role.",
+        "PLC's identity on the plant), External (an external controller's certificate identity: only",
+        "on the loops whose RemoteSource is EXTERNAL). Reading is open to every role.",
         "",
     ]
     for title, tier, builder in (

@@ -15,6 +15,7 @@ tier, a complete but minimal copy of the home owned by the container's user::
                                            cli.pem, the client certificate it opens its users'
                                            sessions with)
         users.json                   0600  the users file (password hashes)
+        external.json                0600  the External identities (when the home has any)
 
 The CA and its private key are never copied: a tier verifies peers against ``trusted/`` and
 ``crl/`` and never signs anything. Every run replaces the copies from the host home, so after
@@ -34,6 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tanklab.errors import SecurityError
+from tanklab_io.external import EXTERNAL_FILE
 from tanklab_io.home import SecurityHome
 from tanklab_io.pki import write_file
 
@@ -149,5 +151,8 @@ def lay_out(
         _fresh_dir(root / "pki" / "private", 0o700, uid, gid)
         files.append(_copy(key, root / "pki" / "private" / key.name, 0o600, uid, gid))
         files.append(_copy(home.users_file, root / "users.json", 0o600, uid, gid))
+        external = home.root / EXTERNAL_FILE
+        if external.is_file():  # the PLC maps its certificates to role External (decision 0055)
+            files.append(_copy(external, root / EXTERNAL_FILE, 0o600, uid, gid))
         out.append(ContainerHome(tier, root, tuple(files)))
     return out

@@ -14,7 +14,9 @@ Server side (:func:`secure_server`)
     * Identities (:class:`TankUserManager`): a user name and password from the users file
       (scrypt), acting in the user's role; or an X509 identity token with a tier certificate of
       the PKI (the supervisor's on the PLC: role Supervisor; the PLC's on the plant: role PLC;
-      a tier's own on its own server: Observer, for its health probe). Anonymous sessions are
+      a tier's own on its own server: Observer, for its health probe; on the PLC also an
+      external controller's, registered by ``tankctl user add-external``: role External,
+      :mod:`tanklab_io.external`). Anonymous sessions are
       refused. Five failed logins lock a user name for 60 s; past ten failed logins within 60 s
       (any names) password checks are suspended for the rest of the window. The scrypt check
       (~70 ms) runs in a worker thread before asyncua's synchronous user lookup, so logins never
@@ -65,6 +67,7 @@ from tanklab.handlers import check_handlers
 from tanklab.tags import APPLICATION_URIS, NAMESPACE_URI, Role, Tag, tags_by_path
 from tanklab_io.audit import AuditLog, AuditRecord
 from tanklab_io.conditions.oftype import match_event_subtypes
+from tanklab_io.external import ExternalIdentities
 from tanklab_io.home import SecurityHome
 from tanklab_io.pki import Pki
 from tanklab_io.ua import (
@@ -143,6 +146,9 @@ _IDENTITY_ROLES: dict[str, dict[str, Role]] = {
     "historian": {"historian": Role.OBSERVER},
 }
 
+_EXTERNAL_TIERS = frozenset({"plc"})
+"""Tiers whose server maps External certificate identities (decision 0055)."""
+
 _OPTIONAL_IDENTITIES = frozenset({"historian"})
 """Identities a tier maps when their certificate exists but does not require: a home made before
 the historian (issue 16) still starts its plant, PLC and supervisor (`tankctl up` and `tankctl pki
@@ -182,6 +188,8 @@ class TankUserManager:
     audit : where refused activations are recorded.
     lockout : the failed-login bookkeeping (5 failures lock for 60 s by default).
     clock : monotonic seconds (injected for tests of the lockout).
+    external : the External identities (re-read when their registry changes), where the tier
+        serves them (the PLC).
     """
 
     def __init__(
@@ -192,8 +200,10 @@ class TankUserManager:
         *,
         lockout: Lockout | None = None,
         clock: Callable[[], float] = time.monotonic,
+        external: ExternalIdentities | None = None,
     ) -> None:
         self.users_file = users_file
+        self.external = external
         self.identities = identities
         self.audit = audit
         self.lockout = lockout or Lockout()
@@ -224,6 +234,8 @@ class TankUserManager:
         if certificate is not None:
             der = certificate if isinstance(certificate, bytes) else uacrypto.der_from_x509(certificate)
             found = self.identities.get(der)
+            if found is None and self.external is not None:
+                found = self.external.current().get(der)
             if found is not None:
                 return TankUser.of(found[0], found[1])
             self._refuse("certificate", "certificate not a tier identity here")
@@ -613,7 +625,10 @@ async def secure_server(
     await server.load_private_key(str(pki.key_path(tier)))
     server.set_security_policy(SECURITY_POLICIES)
     server.set_identity_tokens([ua.UserNameIdentityToken, ua.X509IdentityToken])
-    server.iserver.user_manager = TankUserManager(security.home.users_file, tier_identities(pki, tier), audit)
+    external = ExternalIdentities(security.home) if tier in _EXTERNAL_TIERS else None
+    server.iserver.user_manager = TankUserManager(
+        security.home.users_file, tier_identities(pki, tier), audit, external=external
+    )
     server.set_certificate_validator(ReloadingValidator(pki))
     set_transport_limits(server, limits)
     iserver = server.iserver

@@ -9,8 +9,9 @@ memory per hash), a 16-byte random salt and a 32-byte key, stored as one ASCII s
 
     {"version": 1, "users": {"alice": {"role": "Operator", "password_hash": "scrypt$16384$8$1$..."}}}
 
-Only the login roles Observer, Operator and Engineer have passwords; Supervisor and PLC are
-certificate identities and can never log in with a password.
+Only the login roles Observer, Operator and Engineer have passwords; Supervisor, PLC and External
+(an external controller, :mod:`tanklab_io.external`) are certificate identities and can never log
+in with a password.
 
 **Lockout**: 5 consecutive failed logins of a name lock it for 60 s (while locked even the right
 password is refused); a success resets the count. :class:`Lockout` is pure: the caller passes
@@ -177,6 +178,11 @@ def _check_role(role: object, where: str) -> Role:
     for r in LOGIN_ROLES:
         if role == r.value:  # a Role is a StrEnum: equal to its value
             return r
+    if isinstance(role, str) and role.lower() == Role.EXTERNAL.value.lower():
+        raise SecurityError(
+            f"{where}: External is a certificate identity, never a password login "
+            "(use `tankctl user add-external NAME`)"
+        )
     raise SecurityError(f"{where}: must be one of {_roles_text()}, got {role!r}")
 
 

@@ -64,11 +64,13 @@ MATRIX: dict[str, set[Role]] = {
     "Plant.P*.Command": {Role.PLC},
     "Plant.Sim.Advance": {Role.PLC},
     "PLC.LIC*.SP": OPS,
-    "PLC.LIC*.Mode": OPS | {Role.SUPERVISOR},  # the supervisor: AUTO <-> REMOTE only
+    "PLC.LIC*.Mode": OPS | {Role.SUPERVISOR, Role.EXTERNAL},  # those two: AUTO <-> REMOTE only
     "PLC.LIC*.ManualMV": OPS,
     "PLC.LIC*.SPLow": {Role.ENGINEER},
     "PLC.LIC*.SPHigh": {Role.ENGINEER},
-    "PLC.LIC*.RemoteMV": {Role.SUPERVISOR},
+    "PLC.LIC*.RemoteMV": {Role.SUPERVISOR, Role.EXTERNAL},  # the one its RemoteSource names
+    "PLC.LIC*.RemoteSource": {Role.ENGINEER},
+    "PLC.External.Heartbeat": {Role.EXTERNAL},
     "PLC.LIC*.SetGains": {Role.ENGINEER, Role.SUPERVISOR},
     "PLC.Supervisor.Heartbeat": {Role.SUPERVISOR},
     "PLC.Interlock.Reset": OPS,
@@ -80,7 +82,7 @@ MATRIX: dict[str, set[Role]] = {
 # observe their own tier (the health probe); anywhere else they get no session.
 SESSIONS = {
     "plant": {Role.OBSERVER, Role.OPERATOR, Role.ENGINEER, Role.PLC},
-    "plc": {Role.OBSERVER, Role.OPERATOR, Role.ENGINEER, Role.SUPERVISOR, Role.PLC},
+    "plc": {Role.OBSERVER, Role.OPERATOR, Role.ENGINEER, Role.SUPERVISOR, Role.PLC, Role.EXTERNAL},
     "supervisor": {Role.OBSERVER, Role.OPERATOR, Role.ENGINEER, Role.SUPERVISOR},
 }
 OWN_CERT = {"plc": Role.PLC, "supervisor": Role.SUPERVISOR}
@@ -104,7 +106,13 @@ def identity_of(role: Role) -> ClientIdentity:
         Role.ENGINEER: identity("engineer"),
         Role.SUPERVISOR: identity(tier="supervisor"),
         Role.PLC: identity(tier="plc"),
+        Role.EXTERNAL: identity(tier="external"),
     }[role]
+
+
+OWNED = ("PLC.LIC*.RemoteMV", "PLC.LIC*.Mode")
+"""Nodes the External role writes only on a loop handed to it (RemoteSource EXTERNAL): every loop
+of a fresh PLC is the supervisor's, so the External identity's write there is refused."""
 
 
 @dataclass
@@ -363,6 +371,8 @@ async def test_every_cell_of_the_role_matrix(servers: Servers) -> None:
             try:
                 for tag in tags:
                     allowed = acting in MATRIX[family(tag.path)]
+                    if acting is Role.EXTERNAL and family(tag.path) in OWNED:
+                        allowed = False
                     if tag.kind == "method":
                         status = await call_status(client, tag, *_valid_args(tag))
                         if allowed:

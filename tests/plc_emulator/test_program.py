@@ -130,6 +130,8 @@ def test_values_publish_exactly_the_program_owned_plc_tags(path: Path) -> None:
         "PLC.Status.Overruns",
         "PLC.Supervisor.Heartbeat",
         "PLC.Supervisor.Timeout",
+        "PLC.External.Heartbeat",
+        "PLC.External.Timeout",
         "PLC.Status.PlantLink.Attempts",
         "PLC.Status.PlantLink.Connects",
         "PLC.Status.PlantLink.LastError",

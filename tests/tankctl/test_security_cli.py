@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 
 from tankctl import security_cli
 from tankctl.security_cli import register
+from tanklab.errors import SecurityError
 from tanklab.tags import Role
 from tanklab_io.home import SecurityHome
 from tanklab_io.pki import IDENTITIES, read_certificate, self_signed
@@ -395,3 +396,79 @@ def test_pki_containers_refuses_a_missing_pki_in_one_line(tmp_path: Path) -> Non
     assert "incomplete PKI" in line
     line = one_line_error(run("pki", "containers", "--home", str(tmp_path), "--uid", "x"))
     assert "--uid" in line
+
+
+# --------------------------------------------------------------------------------------------
+# user add-external (decision 0055)
+# --------------------------------------------------------------------------------------------
+
+
+def test_add_external_issues_a_certificate_in_role_external(pki_home: Path) -> None:
+    from tanklab_io.external import ExternalIdentities, load_external
+
+    ran = run("user", "add-external", "ctl1", "--home", str(pki_home))
+    assert ran.code == 0, ran.stderr
+    sec = SecurityHome(pki_home)
+    cert = sec.pki.cert_path("external-ctl1")
+    assert (
+        ran.stdout.splitlines()[0] == "added external controller ctl1 (External, urn:tanklab:external-ctl1)"
+    )
+    assert f"certificate  {cert}" in ran.stdout
+    assert stat.S_IMODE(sec.pki.key_path("external-ctl1").stat().st_mode) == 0o600
+    assert stat.S_IMODE((pki_home / "external.json").stat().st_mode) == 0o600
+    assert "urn:tanklab:external-ctl1" in str(read_certificate(cert).extensions)
+    assert set(load_external(sec)) == {"ctl1"}
+    ids = ExternalIdentities(sec).current()
+    assert ids == {cert.read_bytes(): ("external-ctl1", Role.EXTERNAL)}
+    listed = run("user", "list", "--home", str(pki_home))
+    assert "ctl1  External (certificate urn:tanklab:external-ctl1)" in listed.stdout
+    # Again without --replace: refused, nothing re-issued.
+    before = cert.read_bytes()
+    line = one_line_error(run("user", "add-external", "ctl1", "--home", str(pki_home)))
+    assert "external controller 'ctl1' exists (use --replace to re-issue)" in line
+    assert cert.read_bytes() == before
+    # A certificate file swapped behind the registry's back is no External identity.
+    assert run("user", "add-external", "ctl2", "--home", str(pki_home)).code == 0
+    ctl2 = sec.pki.cert_path("external-ctl2")
+    ctl2.write_bytes(before)
+    assert ("external-ctl2", Role.EXTERNAL) not in ExternalIdentities(sec).current().values()
+    assert run("user", "remove-external", "ctl2", "--home", str(pki_home)).code == 0
+    assert set(load_external(sec)) == {"ctl1"}
+
+
+def test_add_external_bad_input_is_one_line(pki_home: Path, tmp_path: Path) -> None:
+    bad = one_line_error(run("user", "add-external", "no/slash", "--home", str(pki_home)))
+    assert "external controller name 'no/slash': must match" in bad
+    no_pki = one_line_error(run("user", "add-external", "ctl", "--home", str(tmp_path / "empty")))
+    assert "no CA; run `tankctl pki init" in no_pki
+    unknown = one_line_error(run("user", "remove-external", "nobody", "--home", str(pki_home)))
+    assert "no external controller 'nobody'" in unknown
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "external.json").write_text(
+        '{"version": 1, "external": {"x": {"role": "Engineer"}}}'
+    )
+    junk = one_line_error(run("user", "list", "--home", str(tmp_path / "junk")))
+    assert "external.json: external.x: must be an object with role and sha256 only" in junk
+
+
+def test_a_password_user_cannot_be_external(pki_home: Path) -> None:
+    line = one_line_error(
+        run(
+            "user",
+            "add",
+            "bob",
+            "--role",
+            "External",
+            "--home",
+            str(pki_home),
+            "--password-stdin",
+            stdin=NEW_PASSWORD,
+        )
+    )
+    assert line == (
+        "tankctl: user add: --role External is a certificate identity, not a password login: "
+        "use `tankctl user add-external bob`"
+    )
+    assert UsersFile.load(pki_home / "users.json").get("bob") is None
+    with pytest.raises(SecurityError, match="External is a certificate identity, never a password login"):
+        UsersFile.load(pki_home / "users.json").add("bob", Role.EXTERNAL, NEW_PASSWORD)

@@ -107,3 +107,21 @@ def test_an_incomplete_home_is_refused(tmp_path: Path) -> None:
     with pytest.raises(SecurityError, match="no users file"):
         lay_out(empty, euid=0)
     assert not container_root(empty).exists()
+
+
+def test_the_external_identities_go_with_the_copies(tmp_path: Path) -> None:
+    from tanklab_io.external import ExternalIdentities, add_external
+
+    sec = SecurityHome(tmp_path / "home")
+    init_pki(sec.pki.root)
+    users = UsersFile.load(sec.users_file)
+    users.add("alice", Role.OPERATOR, "alice-password-1")
+    users.save()
+    uid, gid = os.geteuid(), os.getegid()
+    (before,) = lay_out(sec, tiers=("plc",), uid=uid, gid=gid, euid=uid)
+    assert not (before.root / "external.json").exists()  # none yet: nothing copied
+    add_external(sec, "ctl")
+    (c,) = lay_out(sec, tiers=("plc",), uid=uid, gid=gid, euid=uid)
+    assert _mode(c.root / "external.json") == 0o600
+    copied = ExternalIdentities(SecurityHome(c.root)).current()
+    assert list(copied.values()) == [("external-ctl", Role.EXTERNAL)]
