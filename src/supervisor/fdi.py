@@ -75,7 +75,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,30 +83,12 @@ from scipy.stats import chi2, norm
 from plant_sim.integrate import step_rk4
 from plant_sim.models import DRAIN, PlantInputs, TankNetwork, default_inputs
 from tanklab.config import SiteConfig
+from tanklab.fdi_model import FaultKind, FdiState, hypothesis_name, site_hypotheses, transmitter_of
+
+__all__ = ["Diagnosis", "FaultKind", "FdiConfig", "FdiCore", "FdiReport", "FdiState", "Hypothesis"]
 
 FloatArray = NDArray[np.float64]
 SECONDS_PER_DAY = 86400.0
-
-
-class FaultKind(IntEnum):
-    """The fault classes FDI isolates (published as integers)."""
-
-    NONE = 0
-    LEAK = 1
-    CLOG = 2
-    PUMP = 3
-    BIAS = 4
-    DRIFT = 5
-    STUCK = 6
-
-
-class FdiState(IntEnum):
-    """The diagnosis state: warming up, no fault, a fault detected but not isolated, isolated."""
-
-    WARMUP = 0
-    NORMAL = 1
-    DETECTED = 2
-    ISOLATED = 3
 
 
 SIZE_UNIT = {
@@ -171,7 +152,7 @@ class Hypothesis:
     @property
     def name(self) -> str:
         """``Leak_T1``, ``Clog_V13``, ``Pump_P1``, ``Bias_LT1``, ``Drift_LT1``, ``Stuck_LT1``."""
-        return f"{self.kind.name.capitalize()}_{self.element}"
+        return hypothesis_name(self.kind, self.element)
 
 
 @dataclass(frozen=True)
@@ -276,20 +257,12 @@ class FdiCore:
         lg = self.cfg.observer_gain
         self.innovation_var_m2 = s2 * (1.0 + lg / (2.0 - lg))
         self._w = 1.0 / self.innovation_var_m2
-        # the hypotheses the site can have
-        hyp: list[Hypothesis] = []
-        for i, t in enumerate(net.tank_names):
-            if net.leak_conductance[i] > 0.0:
-                hyp.append(Hypothesis(FaultKind.LEAK, t))
-        for v, name in enumerate(net.valve_names):
-            if net.valve_conductance[v] > 0.0 and self._valves[v] > 0.0:
-                hyp.append(Hypothesis(FaultKind.CLOG, name))
-        hyp += [Hypothesis(FaultKind.PUMP, p) for p in net.pump_names]
-        self.transmitters = ["LT" + t[1:] for t in net.tank_names]
-        hyp += [Hypothesis(FaultKind.BIAS, lt) for lt in self.transmitters]
-        hyp += [Hypothesis(FaultKind.DRIFT, lt) for lt in self.transmitters]
+        # the hypotheses the site can have (tanklab.fdi_model, shared with the tag contract)
+        every = [Hypothesis(k, e) for k, e in site_hypotheses(site)]
+        self.transmitters = [transmitter_of(t) for t in net.tank_names]
+        hyp = [h for h in every if h.kind is not FaultKind.STUCK]
         self.glr = hyp
-        self.stuck = [Hypothesis(FaultKind.STUCK, lt) for lt in self.transmitters]
+        self.stuck = [h for h in every if h.kind is FaultKind.STUCK]
         self.hypotheses = tuple(hyp + self.stuck)
         self.threshold = glr_threshold(
             self.cfg.false_alarms_per_day, self.ts_s, len(hyp), self.cfg.window_scans

@@ -385,12 +385,41 @@ class SupervisorPaths:
     mpc_planned_mv = "Supervisor.MPC.PlannedMV"
     mpc_predicted_pv = "Supervisor.MPC.PredictedPV"
     disturbance = "Supervisor.Estimator.Disturbance"
+    fdi = "Supervisor.FDI"
+    """The fault diagnosis' object (docs/fdi.md)."""
+    fdi_state = "Supervisor.FDI.State"
+    fdi_diagnosis = "Supervisor.FDI.Diagnosis"
+    fdi_kind = "Supervisor.FDI.Kind"
+    fdi_size = "Supervisor.FDI.Size"
+    fdi_size_std = "Supervisor.FDI.SizeStd"
+    fdi_confidence = "Supervisor.FDI.Confidence"
+    fdi_message = "Supervisor.FDI.Message"
+    fdi_best = "Supervisor.FDI.Best"
 
     @staticmethod
     @cache
     def rls(loop: str) -> RlsPaths:
         """The adaptation nodes of loop ``loop`` (``LIC1``)."""
         return RlsPaths(loop)
+
+    @staticmethod
+    @cache
+    def fdi_hypothesis(name: str) -> FdiHypothesisPaths:
+        """The test nodes of one fault hypothesis (``Leak_T1``)."""
+        return FdiHypothesisPaths(name)
+
+
+class FdiHypothesisPaths:
+    """One FDI hypothesis' test (``Supervisor.FDI.Leak_T1.*``): statistic, threshold, alarm."""
+
+    __slots__ = ("alarm", "size", "statistic", "threshold")
+
+    def __init__(self, name: str) -> None:
+        root = f"Supervisor.FDI.{name}"
+        self.statistic = f"{root}.Statistic"
+        self.threshold = f"{root}.Threshold"
+        self.alarm = f"{root}.Alarm"
+        self.size = f"{root}.Size"
 
 
 # ---- historian --------------------------------------------------------------------------

@@ -12,24 +12,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from plant_sim.linearize import operating_point
-from plant_sim.models import TankNetwork, default_inputs
+from plant_sim.models import default_inputs
 from supervisor.fdi import FaultKind, FdiConfig, FdiCore, FdiState, glr_threshold, stuck_run
 from tankctl.cosim import CoSimulation
 from tanklab.config import SiteConfig
 from tanklab.enums import SensorFault
-from tanklab_testing.sites import SITE
-
-
-def noisy_site(noise_m: float = 1e-3, seed: int = 1) -> SiteConfig:
-    """The Energies site at its operating point with transmitter noise (1 mm, a rig's)."""
-    s = SITE.model_copy(deep=True)
-    net = TankNetwork.from_config(s.plant)
-    op = operating_point(net, s.plant, default_inputs(net, s.plant))
-    for tank, level in zip(s.plant.tanks, op.equilibrium_levels_m, strict=True):
-        tank.transmitter.noise_std_m = noise_m
-        tank.initial_level_m = float(level)
-    s.plant.noise_seed = seed
-    return s
+from tanklab_testing.sites import SITE, noisy_site
 
 
 def run(site: SiteConfig, duration_s: float, inject=None, t_fault_s: float = 100.0, fdi=None):  # type: ignore[no-untyped-def]
