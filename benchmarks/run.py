@@ -39,6 +39,7 @@ from benchmarks import (
     alarms,
     cli,
     cosim,
+    fdi,
     histread,
     histstore,
     mpc,
@@ -66,6 +67,7 @@ SECTIONS = (
     "historian-read",
     "alarms",
     "sweep",
+    "fdi",
 )
 
 
@@ -296,6 +298,14 @@ def main(argv: list[str] | None = None) -> int:
         rep.errors += result.errors
 
     section("sweep", run_sweep)
+
+    def run_fdi() -> None:
+        _log("fault detection and isolation (seeded Monte Carlo through the co-simulation):")
+        result = fdi.run(_log, quick=args.quick)
+        rep.extra.append(fdi.markdown(result))
+        rep.extra_goals += fdi.goals(result)
+
+    section("fdi", run_fdi)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started
