@@ -150,14 +150,16 @@ class TransmitterPaths:
 
 
 class PumpPaths:
-    """The nodes of one pump (``Plant.P1.*``): command [pump unit] and flow [m^3/s]."""
+    """The nodes of one pump (``Plant.P1.*``): command [pump unit], flow [m^3/s] and the
+    fraction 0..1 of its command's flow it delivers (pump degradation, a plant fault)."""
 
-    __slots__ = ("command", "flow", "name")
+    __slots__ = ("command", "delivered", "flow", "name")
 
     def __init__(self, name: str) -> None:
         self.name = name
         self.command = f"Plant.{name}.Command"
         self.flow = f"Plant.{name}.Flow"
+        self.delivered = f"Plant.{name}.Delivered"
 
 
 class PlantPaths:

@@ -273,6 +273,16 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             eu_range=(0.0, pump.max_flow_m3_s),
             initial=pump.flow_of(pump.initial_command),
         )
+        b.var(
+            plant.pump(pump.name).delivered,
+            DataType.DOUBLE,
+            f"Fraction 0..1 of its command's flow pump {pump.name} delivers (1 healthy; below 1: "
+            "pump degradation, a plant fault).",
+            unit="1",
+            eu_range=(0.0, 1.0),
+            writers=OPERATOR_UP,
+            initial=1.0,
+        )
     b.var(plant.sim_time, DataType.DOUBLE, "Model time since start [s].", unit="s", eu_range=(0.0, 1e12))
     b.var(
         plant.sim_speed,

@@ -35,3 +35,25 @@ def test_degradation_is_checkpointed_and_validated() -> None:
     with pytest.raises(ValueError, match="pump_fractions"):
         other.restore(bad)
     assert other.pump_fractions.tolist() == [1.0, 0.5]  # left as it was
+
+
+def test_delivered_node_sets_and_publishes_the_fraction() -> None:
+    """``Plant.P1.Delivered``: a write goes to the simulator (out of range refused, value kept)
+    and the writable values publish it."""
+    from typing import Any, cast
+
+    from plant_sim.server import PlantServer
+    from tanklab import paths
+    from tanklab.tags import plant_tags, tags_by_path
+
+    sim = PlantSimulator(SITE.plant)
+    server = PlantServer(SITE, sim, "127.0.0.1", 0, cast(Any, None))
+    path = paths.plant.pump("P1").delivered
+    tag = tags_by_path(plant_tags(SITE))[path]
+    handler = server.write_handlers()[path]
+    assert handler(tag, 0.7) is None
+    assert sim.pump_fractions[0] == 0.7
+    refused = handler(tag, 1.2)
+    assert refused is not None and refused.name == "BadOutOfRange"
+    assert sim.pump_fractions[0] == 0.7
+    assert server.writable_values()[path] == 0.7
