@@ -51,3 +51,22 @@ def test_supervisor_restart_warms_up_without_false_alarm() -> None:
     assert states[0] is FdiState.WARMUP
     assert states[-1] is FdiState.NORMAL
     assert FdiState.DETECTED not in states and FdiState.ISOLATED not in states
+
+
+def test_status_shows_the_diagnosis() -> None:
+    """``tankctl status``: the supervisor's FDI values (as the server publishes them) in the JSON
+    document and as one line."""
+    from tankctl.ops.status import _fdi_json, fdi_line
+    from tanklab.tags import tags_by_path
+
+    cs = CoSimulation(noisy_site(), supervisor_mode="ADVISORY")
+    tags = tags_by_path(supervisor_tags(cs.site))
+    cs.run(60.0)
+    assert cs.supervisor is not None
+    quiet = _fdi_json(tags, status_values(cs.supervisor.status()))
+    assert quiet["state"] == "NORMAL" and fdi_line(quiet) == "diagnosis: NORMAL"
+    cs.plant.set_leak("T3", 0.2)
+    cs.run(80.0)
+    doc = _fdi_json(tags, status_values(cs.supervisor.status()))
+    assert doc["state"] == "ISOLATED" and doc["diagnosis"] == "Leak_T3"
+    assert fdi_line(doc).startswith("diagnosis: FDI leak T3 est. opening 0.")
