@@ -164,7 +164,6 @@ def _pct(values: list[float], q: float) -> float:
 
 def goals(res: FdiBench) -> list[Goal]:
     per_day = res.free_alarms / res.free_hours * 24.0 if res.free_hours else float("nan")
-    delays = [c.isolated_s for c in res.cases if c.isolated_s is not None]
     correct = sum(1 for c in res.cases if c.diagnosed == CASES[c.case][0])
     med = {
         case: _pct([c.detected_s for c in res.cases if c.case == case and c.detected_s is not None], 50)
@@ -202,11 +201,7 @@ def goals(res: FdiBench) -> list[Goal]:
             f"{within}/{len(sized)}",
             within == len(sized) and bool(sized),
         ),
-    ] + (
-        [Goal("FDI isolation delay median (isolated cases)", "-", f"{_pct(delays, 50):.0f} s", None)]
-        if delays
-        else []
-    )
+    ]
 
 
 def markdown(res: FdiBench) -> str:
@@ -233,9 +228,10 @@ def markdown(res: FdiBench) -> str:
         base = [c.baseline_s for c in cs if c.baseline_s is not None]
         size = f"{statistics.median(sizes):.3g}" if sizes else "-"
         iso_med = f"{_pct(iso, 50):.0f}" if iso else "-"
+        base_med = f"{_pct(base, 50):.0f}" if base else "-"
         lines.append(
             f"| {case} | {len(cs)} | {len(det)} | {_pct(det, 50):.0f} / {_pct(det, 95):.0f} | {len(right)} | "
-            f"{iso_med} | {size} | {len(base)} | {_pct(base, 50):.0f} |"
+            f"{iso_med} | {size} | {len(base)} | {base_med} |"
         )
     names = sorted({c.diagnosed or "(none)" for c in res.cases})
     lines += ["", "Confusion matrix (rows: injected, columns: diagnosis at the end of the case):", ""]
