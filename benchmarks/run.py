@@ -42,6 +42,7 @@ from benchmarks import (
     alarms,
     cli,
     cosim,
+    fdi,
     histread,
     histstore,
     hmi,
@@ -73,6 +74,7 @@ SECTIONS = (
     "sweep",
     "hmi",
     "plugin",
+    "fdi",
 )
 
 
@@ -326,6 +328,14 @@ def main(argv: list[str] | None = None) -> int:
         rep.errors += result.errors
 
     section("plugin", run_plugin)
+
+    def run_fdi() -> None:
+        _log("fault detection and isolation (seeded Monte Carlo through the co-simulation):")
+        result = fdi.run(_log, quick=args.quick)
+        rep.extra.append(fdi.markdown(result))
+        rep.extra_goals += fdi.goals(result)
+
+    section("fdi", run_fdi)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

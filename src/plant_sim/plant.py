@@ -78,6 +78,9 @@ class PlantSimulator:
         self.last_command_s = 0.0
         self.watchdog_tripped = False
         self._commanded = self.inputs.pump_commands.copy()
+        self.pump_fractions = np.ones(self.net.n_pumps)
+        """Pump degradation per pump: the fraction 0..1 of its command's flow a pump delivers
+        (1: healthy). Applied to the command: ``cmd' = pump_commands_for(f * pump_flow(cmd))``."""
         # the command ranges as Python floats, for set_commands' fast path
         self._cmd_shape = (self.net.n_pumps,)
         self._cmd_lo = self.net.pump_cmd_min.tolist()
@@ -194,6 +197,9 @@ class PlantSimulator:
         if self.watchdog_tripped:
             # per pump: ``off`` goes to its lowest command, ``hold`` keeps the last one
             cmd = np.where(self._safe_off, self.net.pump_cmd_min, cmd)
+        if self._degraded:
+            # a degraded pump delivers the fraction f of the flow its command asks for
+            cmd = self.net.pump_commands_for(self.pump_fractions * self.net.pump_target_flows(cmd))
         u = self.inputs
         # a new inputs object (callers may hold the old one), built directly: what
         # dataclasses.replace does, without its field introspection (every scan)
@@ -220,6 +226,17 @@ class PlantSimulator:
         op = self.inputs.leak_openings.copy()
         op[i] = v
         self.inputs = replace(self.inputs, leak_openings=op)
+
+    @property
+    def _degraded(self) -> bool:
+        return bool(np.any(self.pump_fractions != 1.0))
+
+    def set_pump_fraction(self, pump: str, fraction: float) -> None:
+        """Degrade pump ``pump``: it delivers ``fraction`` 0..1 of its command's flow (1: healthy)."""
+        j = self._index(self.net.pump_names, pump, "pump")
+        v = self._opening(fraction, f"{pump} delivered fraction")
+        self.pump_fractions[j] = v
+        self._apply_commands()
 
     def set_disturbance(self, tank: str, flow_m3_s: float) -> None:
         """Set the extra inflow (+) or outflow (-) of tank ``tank`` [m^3/s]."""
@@ -279,6 +296,7 @@ class PlantSimulator:
             "last_readings": self.transmitters.last.tolist(),
             "last_command_s": self.last_command_s,
             "watchdog_tripped": self.watchdog_tripped,
+            "pump_fractions": self.pump_fractions.tolist(),
         }
 
     def restore(self, snap: dict[str, Any]) -> None:
@@ -309,6 +327,9 @@ class PlantSimulator:
         fault_values = vector("fault_values", n, [0.0] * n)
         fault_since = vector("fault_since_s", n, [0.0] * n)
         last = vector("last_readings", n, self.transmitters.last.tolist())
+        fractions = vector("pump_fractions", np_, [1.0] * np_)
+        if np.any(fractions < 0) or np.any(fractions > 1):
+            raise ValueError("checkpoint pump_fractions must lie in [0, 1]")
         self.x = x
         self.t_s = float(snap["t_s"])
         self.stored0_m3 = float(snap["stored0_m3"])
@@ -320,5 +341,6 @@ class PlantSimulator:
         self.transmitters.last = last
         self.last_command_s = float(snap.get("last_command_s", self.t_s))
         self.watchdog_tripped = bool(snap.get("watchdog_tripped", False))
+        self.pump_fractions = fractions
         self._apply_commands()
         self.readings = self.transmitters.read(self.levels, self.t_s)

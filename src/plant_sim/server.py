@@ -108,6 +108,7 @@ class PlantServer:
             table.on(paths.plant.valve_opening(name), self._setting(partial(sim.set_valve, name)))
         for name in sim.net.pump_names:
             table.on(paths.plant.pump(name).command, self._command(name))
+            table.on(paths.plant.pump(name).delivered, self._setting(partial(sim.set_pump_fraction, name)))
         return table
 
     def method_handlers(self) -> HandlerTable[MethodHandler]:
@@ -187,6 +188,7 @@ class PlantServer:
             values[paths.plant.valve_opening(name)] = float(u.valve_openings[k])
         for j, name in enumerate(sim.net.pump_names):
             values[paths.plant.pump(name).command] = float(sim.commands[j])
+            values[paths.plant.pump(name).delivered] = float(sim.pump_fractions[j])
         return {p: v for p, v in values.items() if p in self.by_path}
 
     def snapshot_values(self) -> dict[str, Any]:

@@ -55,6 +55,7 @@ from supervisor.adaptation import (
     PidGains,
     PumpDiagnostics,
 )
+from supervisor.fdi import FdiCore, FdiReport
 from supervisor.mpc import MpcConfig, MpcController, MpcModel, MpcResult
 from supervisor.timing import ScanPredictor
 from tanklab import paths
@@ -164,6 +165,7 @@ class SupervisorStatus:
     mpc : the last MPC step's result (None: none ran yet).
     adaptation : per loop (loop name, report), in loop order; None without an adapter.
     rejected : candidate gain sets rejected by a guard or the PLC (the same for every loop).
+    fdi : the fault diagnosis after the latest scan (:mod:`supervisor.fdi`; None before any).
     """
 
     mode: SupervisorMode
@@ -171,6 +173,7 @@ class SupervisorStatus:
     mpc: MpcResult | None
     adaptation: tuple[tuple[str, LoopAdaptation], ...] | None
     rejected: int
+    fdi: FdiReport | None = None
 
 
 @dataclass
@@ -271,6 +274,7 @@ class SupervisorCore:
         self.shed_reason = ""
         self._last_r: FloatArray | None = None
         self.adapter: PidGainAdapter | None = self._build_adapter() if self._all_pid() else None
+        self.fdi = FdiCore(site)  # fault diagnosis, fed every PLC scan (a restart warms it up afresh)
 
     # ---- construction -------------------------------------------------------------------
 
@@ -411,6 +415,7 @@ class SupervisorCore:
         return act
 
     def _advance(self, snap: PlcSnapshot) -> None:
+        self.fdi.step(snap.scan, snap.t_s, snap.levels_m, snap.good, snap.mv)
         if self.predictor.started:
             self.predictor.advance_to(snap.scan)
         else:
@@ -556,6 +561,7 @@ class SupervisorCore:
             mpc=self.result,
             adaptation=adaptation,
             rejected=self._rejected_pushes + self.pushes_refused,
+            fdi=self.fdi.report,
         )
 
     def _adaptation(self) -> tuple[tuple[str, LoopAdaptation], ...]:

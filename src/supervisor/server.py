@@ -31,6 +31,7 @@ from asyncua import ua
 
 from supervisor.alarms import SupervisorAlarms
 from supervisor.cycle import SupervisorCore, SupervisorStatus
+from supervisor.fdi import FaultKind, FdiReport
 from supervisor.host import ControllerReport
 from tanklab import paths
 from tanklab.alarms import CallStatus, ConditionCall, ConditionEvent
@@ -190,6 +191,8 @@ def status_values(status: SupervisorStatus) -> dict[str, Any]:
         v[sup.disturbance] = [float(x) for x in res.disturbance]
     else:
         v[sup.mpc_status] = int(MpcStatus.NOT_RUN)
+    if status.fdi is not None:
+        v.update(fdi_values(status.fdi))
     for name, a in status.adaptation or ():
         rls = sup.rls(name)
         v[rls.theta] = list(a.theta)
@@ -218,4 +221,27 @@ def controller_values(report: ControllerReport) -> dict[str, Any]:
     }
     for name, value in report.diagnostics.items():
         v[sup.controller_diagnostic(name)] = value
+    return v
+
+
+def fdi_values(report: FdiReport) -> dict[str, Any]:
+    """The ``Supervisor.FDI.*`` values of a diagnosis report, keyed by tag path."""
+    sup = paths.supervisor
+    d = report.diagnosis
+    v: dict[str, Any] = {
+        sup.fdi_state: int(report.state),
+        sup.fdi_diagnosis: d.hypothesis.name if d else "",
+        sup.fdi_kind: int(d.hypothesis.kind) if d else int(FaultKind.NONE),
+        sup.fdi_size: d.size if d else 0.0,
+        sup.fdi_size_std: d.size_std if d else 0.0,
+        sup.fdi_confidence: report.confidence,
+        sup.fdi_best: report.best.name if report.best else "",
+        sup.fdi_message: d.message if d else "",
+    }
+    for h in report.hypotheses:
+        hp = sup.fdi_hypothesis(h.hypothesis.name)
+        v[hp.statistic] = h.statistic
+        v[hp.threshold] = h.threshold
+        v[hp.alarm] = h.alarm
+        v[hp.size] = h.size
     return v

@@ -150,14 +150,16 @@ class TransmitterPaths:
 
 
 class PumpPaths:
-    """The nodes of one pump (``Plant.P1.*``): command [pump unit] and flow [m^3/s]."""
+    """The nodes of one pump (``Plant.P1.*``): command [pump unit], flow [m^3/s] and the
+    fraction 0..1 of its command's flow it delivers (pump degradation, a plant fault)."""
 
-    __slots__ = ("command", "flow", "name")
+    __slots__ = ("command", "delivered", "flow", "name")
 
     def __init__(self, name: str) -> None:
         self.name = name
         self.command = f"Plant.{name}.Command"
         self.flow = f"Plant.{name}.Flow"
+        self.delivered = f"Plant.{name}.Delivered"
 
 
 class PlantPaths:
@@ -407,11 +409,41 @@ class SupervisorPaths:
         """The node of a controller's declared diagnostic ``name``."""
         return f"Supervisor.Controller.Diagnostics.{name}"
 
+    fdi = "Supervisor.FDI"
+    """The fault diagnosis' object (docs/fdi.md)."""
+    fdi_state = "Supervisor.FDI.State"
+    fdi_diagnosis = "Supervisor.FDI.Diagnosis"
+    fdi_kind = "Supervisor.FDI.Kind"
+    fdi_size = "Supervisor.FDI.Size"
+    fdi_size_std = "Supervisor.FDI.SizeStd"
+    fdi_confidence = "Supervisor.FDI.Confidence"
+    fdi_message = "Supervisor.FDI.Message"
+    fdi_best = "Supervisor.FDI.Best"
+
     @staticmethod
     @cache
     def rls(loop: str) -> RlsPaths:
         """The adaptation nodes of loop ``loop`` (``LIC1``)."""
         return RlsPaths(loop)
+
+    @staticmethod
+    @cache
+    def fdi_hypothesis(name: str) -> FdiHypothesisPaths:
+        """The test nodes of one fault hypothesis (``Leak_T1``)."""
+        return FdiHypothesisPaths(name)
+
+
+class FdiHypothesisPaths:
+    """One FDI hypothesis' test (``Supervisor.FDI.Leak_T1.*``): statistic, threshold, alarm."""
+
+    __slots__ = ("alarm", "size", "statistic", "threshold")
+
+    def __init__(self, name: str) -> None:
+        root = f"Supervisor.FDI.{name}"
+        self.statistic = f"{root}.Statistic"
+        self.threshold = f"{root}.Threshold"
+        self.alarm = f"{root}.Alarm"
+        self.size = f"{root}.Size"
 
 
 # ---- historian --------------------------------------------------------------------------

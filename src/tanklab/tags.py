@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from tanklab.config import SiteConfig
 from tanklab.enums import GainSource, LoopMode, MpcStatus, RemoteSource, SensorFault, SupervisorMode
+from tanklab.fdi_model import FaultKind, FdiState, hypothesis_name, site_hypotheses
 from tanklab.identity import SiteIdentity, canonical_json
 from tanklab.paths import (
     ALARM_SUMMARY_ITEMS,
@@ -276,6 +277,16 @@ def plant_tags(site: SiteConfig) -> list[Tag]:
             unit="m^3/s",
             eu_range=(0.0, pump.max_flow_m3_s),
             initial=pump.flow_of(pump.initial_command),
+        )
+        b.var(
+            plant.pump(pump.name).delivered,
+            DataType.DOUBLE,
+            f"Fraction 0..1 of its command's flow pump {pump.name} delivers (1 healthy; below 1: "
+            "pump degradation, a plant fault).",
+            unit="1",
+            eu_range=(0.0, 1.0),
+            writers=OPERATOR_UP,
+            initial=1.0,
         )
     b.var(plant.sim_time, DataType.DOUBLE, "Model time since start [s].", unit="s", eu_range=(0.0, 1e12))
     b.var(
@@ -618,6 +629,58 @@ def controller_tags(b: TagList, diagnostics: Sequence[Diagnostic]) -> None:
         )
 
 
+def _fdi_tags(b: TagList, site: SiteConfig) -> None:
+    """The fault diagnosis' nodes (``Supervisor.FDI.*``, docs/fdi.md): per hypothesis the GLR
+    statistic, its threshold, alarm and size estimate; the diagnosis, its size and confidence."""
+    b.var(
+        supervisor.fdi_state,
+        DataType.INT32,
+        "WARMUP, NORMAL, DETECTED (a test over its threshold, not isolated), ISOLATED.",
+        eu_range=enum_range(FdiState),
+        enum=FdiState,
+    )
+    b.var(
+        supervisor.fdi_diagnosis,
+        DataType.STRING,
+        "The isolated fault (Leak_T1, Bias_LT2, ...), empty if none.",
+    )
+    b.var(
+        supervisor.fdi_kind,
+        DataType.INT32,
+        "Class of the isolated fault (NONE if none).",
+        eu_range=enum_range(FaultKind),
+        enum=FaultKind,
+    )
+    b.var(
+        supervisor.fdi_size,
+        DataType.DOUBLE,
+        "Estimated size: leak opening, clog fraction lost, pump fraction delivered, bias [m], drift [m/s], "
+        "stuck value [m].",
+    )
+    b.var(supervisor.fdi_size_std, DataType.DOUBLE, "Standard deviation of the size estimate (same unit).")
+    b.var(
+        supervisor.fdi_confidence,
+        DataType.DOUBLE,
+        "Posterior confidence of the best hypothesis (0 when nothing is detected).",
+        unit="1",
+        eu_range=(0.0, 1.0),
+    )
+    b.var(supervisor.fdi_best, DataType.STRING, "The leading hypothesis while a test is over its threshold.")
+    b.var(
+        supervisor.fdi_message,
+        DataType.STRING,
+        "The diagnosis as a sentence (FDI leak T3 est. opening 0.21 ...).",
+    )
+    for kind, element in site_hypotheses(site):
+        name = hypothesis_name(kind, element)
+        hp = supervisor.fdi_hypothesis(name)
+        what = "repeats (or bad readings) in a row" if kind is FaultKind.STUCK else "GLR statistic 2 ln LR"
+        b.var(hp.statistic, DataType.DOUBLE, f"{name}: {what}.")
+        b.var(hp.threshold, DataType.DOUBLE, f"{name}: threshold of the statistic.")
+        b.var(hp.alarm, DataType.BOOLEAN, f"{name}: the statistic is at or over its threshold.")
+        b.var(hp.size, DataType.DOUBLE, f"{name}: size estimate at the best onset.")
+
+
 def supervisor_tags(site: SiteConfig, diagnostics: Sequence[Diagnostic] = ()) -> list[Tag]:
     """Nodes of the supervisor for ``site`` (needs ``plc`` and ``supervisor`` sections), with the
     declared ``diagnostics`` of its supervisory controller (the shipped one declares none)."""
@@ -670,6 +733,7 @@ def supervisor_tags(site: SiteConfig, diagnostics: Sequence[Diagnostic] = ()) ->
         DataType.DOUBLE_ARRAY,
         f"Predicted controlled levels [m], step-major, levels inner ({zs}); Np x levels values.",
     )
+    _fdi_tags(b, site)
     for lp in site.plc.loops:
         rp = supervisor.rls(lp.name)
         b.var(

@@ -14,7 +14,7 @@ import yaml
 from plant_sim.linearize import operating_point
 from plant_sim.models import TankNetwork, default_inputs
 from tankctl.testing.stack import HOST, PORT_ORDER, TIERS, tier_url
-from tanklab.config import load_site
+from tanklab.config import SiteConfig, load_site
 from tanklab.tags import plc_tags
 from tanklab_testing.procs import ROOT
 
@@ -55,3 +55,16 @@ def site_config(
             pump["initial_command"] = float(command)
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return path
+
+
+def noisy_site(noise_m: float = 1e-3, seed: int = 1) -> SiteConfig:
+    """The default site at its operating point (equilibrium levels) with transmitter noise
+    ``noise_m`` [m] (1 mm, a rig's) and noise seed ``seed``: the FDI tests' and benchmark's plant."""
+    s = SITE.model_copy(deep=True)
+    net = TankNetwork.from_config(s.plant)
+    op = operating_point(net, s.plant, default_inputs(net, s.plant))
+    for tank, lvl in zip(s.plant.tanks, op.equilibrium_levels_m, strict=True):
+        tank.transmitter.noise_std_m = noise_m
+        tank.initial_level_m = float(lvl)
+    s.plant.noise_seed = seed
+    return s

@@ -6,6 +6,7 @@
     tankctl setpoint LIC1 0.45                   PLC.LIC1.SP [m]
     tankctl leak T1 0.3 | tankctl leak T1 off    Plant.T1.Leak, opening 0..1
     tankctl valve V13 0.5                        Plant.V13.Opening, 0..1
+    tankctl pump P1 0.8 | tankctl pump P1 healthy   Plant.P1.Delivered, fraction 0..1 (degradation)
     tankctl loop LIC1 manual 40                  PLC.LIC1.Mode = MANUAL, then ManualMV = 40 % of its EURange
     tankctl loop LIC1 auto                       PLC.LIC1.Mode = AUTO
     tankctl mode adaptive-pid|mpc|advisory|off   Supervisor.Mode
@@ -139,6 +140,7 @@ _HOME = {
     "mode": "writes",
     "setpoint": "writes",
     "valve": "writes",
+    "pump": "writes",
 }
 """The module of this package that defines each name the package exports. (``status``,
 ``browse``, ``gains`` and ``watch`` are the modules of those commands: :data:`COMMANDS`.)"""
@@ -148,6 +150,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "setpoint": ("writes", "setpoint"),
     "leak": ("writes", "leak"),
     "valve": ("writes", "valve"),
+    "pump": ("writes", "pump"),
     "loop": ("writes", "loop_command"),
     "mode": ("writes", "mode"),
     "gains": ("gains", "gains"),

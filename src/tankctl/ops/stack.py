@@ -313,6 +313,10 @@ class Stack:
         """A valve name of the site (V13, ...), else UsageError."""
         return self._known(name, self.site.valve_names, "valve")
 
+    def pump(self, name: str) -> str:
+        """A pump name of the site (P1, ...), else UsageError."""
+        return self._known(name, self.site.pump_names, "pump")
+
     def _known(self, name: str, known: list[str], what: str) -> str:
         if name.upper() in known:
             return name.upper()

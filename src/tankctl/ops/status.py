@@ -132,8 +132,32 @@ def _supervisor_json(stack: Stack, v: dict[str, Any]) -> dict[str, Any]:
             "failures": v[sup.mpc_failures],
             "horizon": v[sup.mpc_horizon],
         },
+        "fdi": _fdi_json(tags, v),
         "alarm_summary": summary_json("supervisor", v),
     }
+
+
+def _fdi_json(tags: dict[str, Any], v: dict[str, Any]) -> dict[str, Any]:
+    """The fault diagnosis (docs/fdi.md): state, diagnosis and its size, the leading hypothesis."""
+    sup = paths.supervisor
+    return {
+        "state": show(tags[sup.fdi_state], v[sup.fdi_state]),
+        "diagnosis": v[sup.fdi_diagnosis],
+        "size": plain(v[sup.fdi_size]),
+        "size_std": plain(v[sup.fdi_size_std]),
+        "confidence": plain(v[sup.fdi_confidence]),
+        "best": v[sup.fdi_best],
+        "message": v[sup.fdi_message],
+    }
+
+
+def fdi_line(fdi: dict[str, Any]) -> str:
+    """One line of the diagnosis: its message when isolated, else the state (and the leader)."""
+    if fdi["message"]:
+        return f"diagnosis: {fdi['message']}"
+    if fdi["best"]:
+        return f"diagnosis: {fdi['state']} (leading: {fdi['best']}, not isolated)"
+    return f"diagnosis: {fdi['state']}"
 
 
 async def collect_status(stack: Stack) -> dict[str, Any]:
@@ -242,6 +266,10 @@ def render_status(stack: Stack, doc: dict[str, Any]) -> Group:
         parts.append(Text(f"alarms: {alarms}; interlocks tripped: {trips}"))
     elif site.plc is not None:
         parts.append(Text("alarms: unknown (PLC unreachable)"))
+    sup_doc = doc["supervisor"]
+    if sup_doc is not None and sup_doc["reachable"]:
+        fdi = sup_doc["fdi"]
+        parts.append(Text(fdi_line(fdi), style="bold red" if fdi["message"] else ""))
     for tier in ("plc", "supervisor"):
         d = doc[tier]
         if d is not None and d["reachable"]:

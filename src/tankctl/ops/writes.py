@@ -1,4 +1,5 @@
-"""Writes: ``setpoint``, ``leak``, ``valve``, ``loop``, ``mode`` (one node each, old value shown)."""
+"""Writes: ``setpoint``, ``leak``, ``valve``, ``pump``, ``loop``, ``mode`` (one node each, old value
+shown)."""
 
 from __future__ import annotations
 
@@ -100,6 +101,21 @@ def valve(
     stack = options.stack()
     value = check_usage(lambda: _opening(opening, "the valve opening", {"open": 1.0, "closed": 0.0}))
     _write_one(stack, "plant", lambda: paths.plant.valve_opening(stack.valve(name)), value)
+
+
+@stack_command
+def pump(
+    name: Annotated[str, typer.Argument(help="Pump, e.g. P1.")],
+    fraction: Annotated[
+        str, typer.Argument(help="Fraction 0..1 of its command's flow it delivers; 'healthy' = 1.")
+    ],
+    *,
+    options: StackOptions,
+) -> None:
+    """Degrade a pump (Plant.P{i}.Delivered, 0..1): it delivers that fraction of its command's flow."""
+    stack = options.stack()
+    value = check_usage(lambda: _opening(fraction, "the delivered fraction", {"healthy": 1.0}))
+    _write_one(stack, "plant", lambda: paths.plant.pump(stack.pump(name)).delivered, value)
 
 
 def _loop_mode(text: str) -> LoopMode:
