@@ -42,9 +42,11 @@ from tanklab.errors import TanklabError
 from tanklab_io.home import SecurityHome, provision
 
 READY_TIMEOUT_S = 120.0
-"""Bound of the start-up of one hosting process's sites, plus :data:`READY_PER_SITE_S` each."""
-READY_PER_SITE_S = 2.0
-STOP_GRACE_S = 30.0
+"""Bound of the start-up of one hosting process's sites, plus :data:`READY_PER_SITE_S` each
+(a site's three servers build their address spaces one after the other: 5 to 15 s of a loaded
+core each)."""
+READY_PER_SITE_S = 20.0
+STOP_GRACE_S = 60.0
 """From SIGTERM to SIGKILL of the hosting processes [s] (a process stops its sites in parallel)."""
 REAP_S = 5.0
 DOWN_TIMEOUT_S = STOP_GRACE_S + REAP_S + 10.0
