@@ -84,8 +84,10 @@ def _tankctl(*args: str, env: dict[str, str]) -> TankctlProcess:
     return TankctlProcess(*args, ready=None, merge_stderr=True, env=env)
 
 
-async def measure(n: int, window_s: float, work: Path, log: Callable[[str], None]) -> FleetPoint:
-    point = FleetPoint(n, PER_PROCESS, window_s)
+async def measure(
+    n: int, window_s: float, work: Path, log: Callable[[str], None], per_process: int = PER_PROCESS
+) -> FleetPoint:
+    point = FleetPoint(n, per_process, window_s)
     base = free_base_port(3 * n, low=30000, high=60000)
     fleet_dir = work / f"fleet-{n}"
     env = {**os.environ, "TANKLAB_HOME": str(bench_home())}
@@ -99,7 +101,7 @@ async def measure(n: int, window_s: float, work: Path, log: Callable[[str], None
         "--base-port",
         str(base),
         "--sites-per-process",
-        str(PER_PROCESS),
+        str(per_process),
         "--fleet-dir",
         str(fleet_dir),
         name=f"fleet-{n}",
@@ -149,24 +151,27 @@ def markdown(points: list[FleetPoint]) -> str:
         "",
         "`benchmarks/fleet.py` (`python -m benchmarks.run --only fleet`; alone: `python -m "
         "benchmarks.fleet`). The shipped Energies site at speed 1 (1 s PLC scan), "
-        f"{PER_PROCESS} sites per hosting process. *Overruns (window)* are the PLC overruns counted "
+        "K sites per hosting process (column). *Overruns (window)* are the PLC overruns counted "
         "after every site was up, summed over the sites; *start-up* those counted before; "
         "*reachable*: sites whose plant, PLC and supervisor each answered a read from `fleet status` "
         "after the window; RSS is the sum over the hosting processes; CPU is each hosting process's "
         "% of one core over its last 2 s. The machine is shared with other work: its load average "
         "(1, 5, 15 min) is recorded at each N.",
         "",
-        "| N | processes | window [s] | start-up [s] | overruns (start-up) | overruns (window) | up | "
+        "| N | K | processes | window [s] | start-up [s] | overruns (start-up) | overruns (window) | up | "
         "reachable | RSS total [MiB] | RSS per site [MiB] | CPU per process [%] | load avg | left |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in points:
         if p.error:
-            lines.append(f"| {p.sites} | | {p.window_s:g} | failed: {p.error} | | | | | | | | | |")
+            lines.append(
+                f"| {p.sites} | {p.per_process} | | {p.window_s:g} | failed: {p.error} | | | | | | | | | |"
+            )
             continue
         cpu = ", ".join(f"{c:.0f}" for c in p.cpu_percent)
         lines.append(
-            f"| {p.sites} | {-(-p.sites // p.per_process)} | {p.window_s:g} | {p.start_s:.0f} | "
+            f"| {p.sites} | {p.per_process} | {-(-p.sites // p.per_process)} | {p.window_s:g} | "
+            f"{p.start_s:.0f} | "
             f"{p.startup_overruns} | {p.window_overruns} | {p.up} | {p.reachable} | {p.rss_mib:.0f} | "
             f"{p.rss_mib / p.sites:.0f} | {cpu} | {p.load} | {p.left} |"
         )
@@ -180,13 +185,19 @@ def markdown(points: list[FleetPoint]) -> str:
     return "\n".join(lines)
 
 
-def run(ns: tuple[int, ...], window_s: float, log: Callable[[str], None], work: Path | None = None) -> str:
+def run(
+    ns: tuple[int, ...],
+    window_s: float,
+    log: Callable[[str], None],
+    work: Path | None = None,
+    per_process: int = PER_PROCESS,
+) -> str:
     work = work or ROOT / "var" / "bench-fleet"
     work.mkdir(parents=True, exist_ok=True)
     points = []
     for n in ns:
         log(f"fleet of {n} sites, {window_s:g} s window:")
-        points.append(asyncio.run(measure(n, window_s, work, log)))
+        points.append(asyncio.run(measure(n, window_s, work, log, per_process)))
     return markdown(points)
 
 
@@ -195,9 +206,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sites", default=",".join(map(str, DEFAULT_NS)))
     parser.add_argument("--window", type=float, default=600.0)
     parser.add_argument("--output", type=Path, required=True)
+    parser.add_argument("--per-process", type=int, default=PER_PROCESS)
     args = parser.parse_args(argv)
     ns = tuple(int(x) for x in args.sites.split(","))
-    text = run(ns, args.window, lambda line: print(line, file=sys.stderr, flush=True))
+    text = run(
+        ns, args.window, lambda line: print(line, file=sys.stderr, flush=True), per_process=args.per_process
+    )
     args.output.write_text(text, encoding="utf-8")
     print(text)
 

@@ -54,8 +54,11 @@ CURRENT_SITE: contextvars.ContextVar[int | None] = contextvars.ContextVar("tankl
 """The index of the site whose task is running (None outside every site)."""
 TIER_STOP_S = 15.0
 """How long a tier of a site gets to stop once asked before its task is cancelled [s]."""
-SITE_READY_S = 120.0
+SITE_READY_S = 300.0
 """How long a tier of a site gets to serve before the site counts as failed [s]."""
+STARTING_AT_ONCE = 2
+"""Sites of one process that start at the same time: a server's start-up is CPU-bound (its
+address space, RSA), so starting all K at once only makes each slower than its bound."""
 
 
 def fleet_site(base: SiteConfig, layout: FleetLayout, i: int) -> SiteConfig:
@@ -169,11 +172,13 @@ async def run_site(
     security: ServerSecurity,
     stop: asyncio.Event,
     runners: SiteRunners | None = None,
+    starting: asyncio.Semaphore | None = None,
 ) -> None:
     """Run site ``state.index`` until ``stop`` or a failure of one of its tiers; never raises.
 
     Starts plant, PLC and supervisor (if the site has one) bottom-up, each serving before the
-    next starts; stops the PLC first, then the supervisor and the plant.
+    next starts (``starting`` bounds how many sites of the process start at once); stops the
+    PLC first, then the supervisor and the plant.
     """
     CURRENT_SITE.set(state.index)
     runners = runners or SiteRunners()
@@ -181,7 +186,11 @@ async def run_site(
     d = layout.site_dir(i)
     stops = {t: asyncio.Event() for t in ("plant", "plc", "supervisor")}
     tasks: dict[str, asyncio.Task[Any]] = {}
+    starting = starting or asyncio.Semaphore(1)
+    holding = False
     try:
+        await starting.acquire()
+        holding = True
         ready = asyncio.Event()
         tasks["plant"] = asyncio.create_task(
             runners.plant(
@@ -228,6 +237,8 @@ async def run_site(
                 )
             )
             await _started(ready, tasks["supervisor"], "supervisor")
+        starting.release()
+        holding = False
         state.state = "up"
         log.info("site %s up: %s", site.name, ", ".join(layout.url(i, t) for t in tasks))
         stopper = asyncio.ensure_future(stop.wait())
@@ -248,6 +259,8 @@ async def run_site(
         state.state, state.error = "failed", f"{type(e).__name__}: {e}"
         log.exception("site %s failed; the other sites go on", site.name)
     finally:
+        if holding:
+            starting.release()
         for name in ("plc", "supervisor", "plant"):
             await _stop_tier(stops[name], tasks.get(name))
         if state.state != "failed":
@@ -297,13 +310,14 @@ class Host:
     async def run(self, stop: asyncio.Event) -> None:
         """Run every site of this process until ``stop``; write the status file meanwhile."""
         tasks = []
+        starting = asyncio.Semaphore(STARTING_AT_ONCE)
         for i in self.states:
             self.layout.site_dir(i).mkdir(parents=True, exist_ok=True)
             site = fleet_site(self.base, self.layout, i)
             # Each site's task runs in a copy of the context: CURRENT_SITE set there stays there.
             tasks.append(
                 asyncio.create_task(
-                    run_site(site, self.layout, self.states[i], self.security, stop, self.runners),
+                    run_site(site, self.layout, self.states[i], self.security, stop, self.runners, starting),
                     name=f"site-{i}",
                     context=contextvars.copy_context(),
                 )
