@@ -43,6 +43,7 @@ from benchmarks import (
     cli,
     cosim,
     fdi,
+    fleet,
     histread,
     histstore,
     hmi,
@@ -75,6 +76,7 @@ SECTIONS = (
     "hmi",
     "plugin",
     "fdi",
+    "fleet",
 )
 
 
@@ -336,6 +338,13 @@ def main(argv: list[str] | None = None) -> int:
         rep.extra_goals += fdi.goals(result)
 
     section("fdi", run_fdi)
+
+    def run_fleet() -> None:
+        _log("fleets of live sites (tankctl fleet up at a 1 s scan):")
+        ns = (10,) if args.quick else fleet.DEFAULT_NS
+        rep.extra.append(fleet.run(ns, 60.0 if args.quick else 600.0, _log))
+
+    section("fleet", run_fleet)
     rep.speed_reference_ms = (speed_start, speed_reference())
     _log(f"machine speed reference at the end: {rep.speed_reference_ms[1]:.1f} ms")
     rep.total_wall_s = time.perf_counter() - started

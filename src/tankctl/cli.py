@@ -49,6 +49,7 @@ class TankctlGroup(LazyGroup):
         "pki": Lazy("tankctl.security_cli", "pki_app", group=True),
         "user": Lazy("tankctl.security_cli", "user_app", group=True),
         "k8s": Lazy("tankctl.k8s_cli", "k8s_app", group=True),
+        "fleet": Lazy("tankctl.fleet_cli", "fleet_app", group=True),
     }
     order: ClassVar[tuple[str, ...]] = (
         *OPERATOR_COMMANDS,
@@ -70,6 +71,7 @@ class TankctlGroup(LazyGroup):
         "user",
         "k8s",
         "docs",
+        "fleet",
     )
 
     def resolve_command(self, ctx: Context, args: list[str]) -> tuple[str | None, Command | None, list[str]]:

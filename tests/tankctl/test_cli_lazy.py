@@ -25,6 +25,7 @@ ENV = {"COLUMNS": "100", "TERMINAL_WIDTH": "100"}
 def _eager_app() -> typer.Typer:
     from tankctl import (
         cli,
+        fleet_cli,
         history_cli,
         k8s_cli,
         ops,
@@ -58,6 +59,7 @@ def _eager_app() -> typer.Typer:
     app.add_typer(cli.docs_app, name="docs")
     for command in (cli.linearize, cli.plant, cli.plc, cli.supervisor, cli.historian, cli.hmi, cli.up):
         app.command()(command)
+    app.add_typer(fleet_cli.fleet_app, name="fleet")
     return app
 
 
