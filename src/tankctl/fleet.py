@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import errno
 import json
 import os
 import signal
@@ -37,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from tankctl.fleet_layout import FLEET_TIERS, FleetError, FleetLayout
+from tankctl.ports import unbindable
 from tankctl.up_process import Tier, running_pid
 from tanklab.errors import TanklabError
 from tanklab_io.home import SecurityHome, provision
@@ -57,23 +57,11 @@ def check_ports(host: str, ports: Sequence[int]) -> None:
     """Bind every port as the servers will (SO_REUSEADDR); FleetError naming the first busy one."""
     for port in ports:
         try:
-            infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+            what = unbindable(host, port)
         except socket.gaierror as e:
             raise FleetError(f"--host {host}: {e.strerror or e}") from None
-        for family, kind, proto, _, addr in infos:
-            with socket.socket(family, kind, proto) as s:
-                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                try:
-                    s.bind(addr)
-                except OSError as e:
-                    what = (
-                        "is already in use"
-                        if e.errno == errno.EADDRINUSE
-                        else f"cannot be bound: {e.strerror or e}"
-                    )
-                    raise FleetError(
-                        f"port {port} on {host} {what}; nothing started (--base-port picks other ports)"
-                    ) from None
+        if what:
+            raise FleetError(f"port {port} on {host} {what}; nothing started (--base-port picks other ports)")
 
 
 def host_pids(layout: FleetLayout) -> dict[int, int]:

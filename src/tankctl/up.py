@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import errno
 import os
 import signal
 import socket
@@ -45,6 +44,7 @@ from rich.console import Console
 from rich.live import Live
 
 from historian.store import URL_ENV
+from tankctl.ports import unbindable
 from tankctl.relay import Relay
 from tankctl.up_board import Board
 from tankctl.up_process import Tier, last_error_line, running_pid
@@ -265,26 +265,14 @@ class LocalStack:
         """Bind every port the tiers will bind, as they will (SO_REUSEADDR, like asyncio)."""
         for tier in self.tiers.values():
             try:
-                infos = socket.getaddrinfo(
-                    self.host, tier.port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
-                )
+                what = unbindable(self.host, tier.port)
             except socket.gaierror as e:
                 raise PreflightError(f"--host {self.host}: {e.strerror or e}") from None
-            for family, kind, proto, _, addr in infos:
-                with socket.socket(family, kind, proto) as s:
-                    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                    try:
-                        s.bind(addr)
-                    except OSError as e:
-                        what = (
-                            "is already in use"
-                            if e.errno == errno.EADDRINUSE
-                            else f"cannot be bound: {e.strerror or e}"
-                        )
-                        raise PreflightError(
-                            f"port {tier.port} ({tier.name}) on {self.host} {what}; "
-                            "nothing started (another stack? --base-port picks other ports)"
-                        ) from None
+            if what:
+                raise PreflightError(
+                    f"port {tier.port} ({tier.name}) on {self.host} {what}; "
+                    "nothing started (another stack? --base-port picks other ports)"
+                )
 
     def check_pid_files(self) -> None:
         """Refuse when a pid file of the run directory names a running tanklab process."""
