@@ -61,6 +61,7 @@ MATRIX: dict[str, set[Role]] = {
     "Plant.V*.Opening": OPS,
     "Plant.LT*.Fault": OPS,
     "Plant.LT*.FaultValue": OPS,
+    "Plant.P*.Delivered": OPS,  # pump degradation (issue 20): simulation control
     "Plant.P*.Command": {Role.PLC},
     "Plant.Sim.Advance": {Role.PLC},
     "PLC.LIC*.SP": OPS,

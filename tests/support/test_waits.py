@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from tanklab_testing import waits
+from tankctl.testing import waits
 
 
 class FakeMachine:
