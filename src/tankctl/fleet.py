@@ -37,7 +37,7 @@ from typing import Any
 
 from tankctl.fleet_layout import FLEET_TIERS, FleetError, FleetLayout
 from tankctl.ports import unbindable
-from tankctl.up_process import Tier, running_pid
+from tankctl.up_process import Tier, running_pid, terminate
 from tanklab.errors import TanklabError
 from tanklab_io.home import SecurityHome, provision
 
@@ -223,15 +223,7 @@ class Fleet:
         """SIGTERM to every process started, SIGKILL after STOP_GRACE_S; seconds and the killed."""
         t0 = time.monotonic()
         started = [p for p in self.procs.values() if p.proc is not None]
-        for proc in started:
-            proc.signal(signal.SIGTERM)
-        await asyncio.gather(*(p.wait(STOP_GRACE_S) for p in started))
-        killed = [p.name for p in started if p.running]
-        for proc in started:
-            proc.signal(signal.SIGKILL)
-        await asyncio.gather(*(p.wait(REAP_S) for p in started))
-        for proc in started:
-            proc.release()
+        killed = await terminate(started, STOP_GRACE_S, REAP_S)
         return time.monotonic() - t0, killed
 
 

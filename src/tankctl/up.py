@@ -47,7 +47,7 @@ from historian.store import URL_ENV
 from tankctl.ports import unbindable
 from tankctl.relay import Relay
 from tankctl.up_board import Board
-from tankctl.up_process import Tier, last_error_line, running_pid
+from tankctl.up_process import Tier, last_error_line, running_pid, terminate
 from tanklab import paths
 from tanklab.config import SiteConfig
 from tanklab.errors import TanklabError
@@ -486,16 +486,7 @@ class LocalStack:
         if plc is not None and plc.running:
             plc.signal(signal.SIGTERM)
             await plc.wait(PLC_FIRST_S)
-        for tier in started:
-            tier.signal(signal.SIGTERM)
-        left = t0 + STOP_GRACE_S - time.monotonic()
-        await asyncio.gather(*(t.wait(left) for t in started))
-        killed = [t.name for t in started if t.running]
-        for tier in started:
-            tier.signal(signal.SIGKILL)
-        await asyncio.gather(*(t.wait(REAP_S) for t in started))
-        for tier in started:
-            tier.release()
+        killed = await terminate(started, t0 + STOP_GRACE_S - time.monotonic(), REAP_S)
         lines = self.saved_lines(started, stop_started) if started else []
         gone_at = {t.name: max(0.0, t.exited_at - t0) for t in started if t.exited_at is not None}
         return StopReport(killed, time.monotonic() - t0, lines, gone_at)

@@ -158,3 +158,19 @@ class Tier:
         if self.proc is not None and running_pid(self.pid_path) in (None, self.proc.pid):
             with contextlib.suppress(FileNotFoundError):
                 self.pid_path.unlink()
+
+
+async def terminate(started: list[Tier], grace_s: float, reap_s: float) -> list[str]:
+    """SIGTERM to every process of ``started``, SIGKILL to those still there after ``grace_s``,
+    ``reap_s`` to reap them, then :meth:`Tier.release` of each: the names of the killed (the end
+    of `up`'s and `fleet up`'s one stop path)."""
+    for proc in started:
+        proc.signal(signal.SIGTERM)
+    await asyncio.gather(*(p.wait(grace_s) for p in started))
+    killed = [p.name for p in started if p.running]
+    for proc in started:
+        proc.signal(signal.SIGKILL)
+    await asyncio.gather(*(p.wait(reap_s) for p in started))
+    for proc in started:
+        proc.release()
+    return killed
