@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import ENERGIES, Goal, fmt, speed_reference
+from tanklab_testing.browser import CHROMEDRIVER, CHROMIUM, chrome_options
 from tanklab_testing.logins import provision
 from tanklab_testing.procs import TankctlProcess, descendants, free_base_port, free_port, tankctl_pids_on
 from tanklab_testing.stack import Stack
@@ -62,8 +63,6 @@ GOAL_P99_S = 0.25
 """Issue 17: p99 of value change to DOM update <= 250 ms at a 1 s scan."""
 POLL_S = 0.1
 """The HMI's poll (its default, hmi.hub.POLL_S) [s]."""
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMEDRIVER = Path("/usr/bin/chromedriver")
 TIERS = ("plant", "plc", "supervisor", "historian")
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -222,18 +221,7 @@ class _Chromium:
 
         if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):
             raise RuntimeError(f"{CHROMIUM} and {CHROMEDRIVER} are needed (`make tools`)")
-        opts = webdriver.ChromeOptions()
-        opts.binary_location = str(CHROMIUM)
-        for arg in (
-            "--headless=new",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-dev-shm-usage",
-            "--disable-extensions",
-            "--no-first-run",
-            "--window-size=1400,1000",
-        ):
-            opts.add_argument(arg)
+        opts = chrome_options(1400, 1000)
         self.driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
         self.driver.set_script_timeout(30)
 

@@ -40,11 +40,10 @@ from selenium.webdriver.remote.webelement import WebElement
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from helpers import ROOT
+from tanklab_testing.browser import CHROMEDRIVER, CHROMIUM, chrome_options
 from tanklab_testing.procs import TankctlProcess, UpProcess, free_base_port, free_port
 from tanklab_testing.waits import wait_until
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMEDRIVER = Path("/usr/bin/chromedriver")
 SCREENSHOTS = os.environ.get("TANKLAB_SCREENSHOTS") == "1"
 IMG = ROOT / "docs" / "img"
 T = TypeVar("T")
@@ -168,18 +167,7 @@ class Browser:
         )
         self.downloads = downloads
         downloads.mkdir(parents=True, exist_ok=True)
-        opts = webdriver.ChromeOptions()
-        opts.binary_location = str(CHROMIUM)
-        for arg in (
-            "--headless=new",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-dev-shm-usage",
-            "--disable-extensions",
-            "--no-first-run",
-            f"--window-size={width},{height}",
-        ):
-            opts.add_argument(arg)
+        opts = chrome_options(width, height)
         opts.add_experimental_option(
             "prefs",
             {"download.default_directory": str(downloads), "download.prompt_for_download": False},
